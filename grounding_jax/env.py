@@ -1,0 +1,363 @@
+"""The point/touch/push environment as pure functions: ``reset(key, task)``, ``step(state, a)``.
+
+Semantics follow the paper (section 2.2) and ``SPEC.md``:
+
+- observation (11): the 4 arm joints scaled to [-1, 1] by eq. 1 with the paper's limits, the
+  touch bit (the arm touches an object), the action one-hot (point/touch/push) and the
+  position one-hot (left/middle/right);
+- action (4): change of the 4 scaled joints; ``action_scale`` (1/3) times it is added to the
+  current scaled joints, the result is clipped to the model's joint limits and becomes the
+  position servos' target for ``substeps`` physics steps;
+- reward at every step: point -- minus the L1 distance (scaled units) between the joints and
+  the stored pointing configuration of the target position; touch -- minus the palm's distance
+  to the target's original position, ``touch_other_penalty`` added when touching another
+  object and ``touch_target_penalty`` when touching the target; push -- minus the palm's
+  distance to the target's original position;
+- moving a wrong object (further than ``wrong_move_threshold`` from where it stood) ends the
+  episode ``wrong_move_extra_steps`` steps later; otherwise it ends after ``episode_length``.
+
+``done`` is sticky: stepping a finished episode keeps ``done`` true (learners mask with it).
+NaN entries of an action are replaced by zero (no move) and counted in
+``metrics["nan_actions"]``; they never reach the physics state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from grounding_jax import physics, scene
+
+OBS_SIZE = 11
+ACTION_SIZE = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Static configuration: anything here changes the compiled code.
+
+    Attributes:
+        backend: ``"mujoco"`` (C MuJoCo via ``mujoco.rollout``; CPU) or ``"mjx"`` (pure JAX).
+        substeps: physics steps (5 ms each) per RL step.
+        episode_length: RL steps per episode (the paper: 75).
+    """
+
+    backend: str = "mujoco"
+    substeps: int = 10
+    episode_length: int = 75
+
+    def __post_init__(self) -> None:
+        physics.check_backend(self.backend)
+        for name in ("substeps", "episode_length"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+
+
+@struct.dataclass
+class EnvParams:
+    """Traced parameters: a sweep over these compiles once.
+
+    Attributes:
+        action_scale: factor applied to the action before it moves the joints (paper: 1/3).
+        touch_other_penalty: added to the touch reward while touching a non-target object.
+        touch_target_penalty: added to the touch reward while touching the target.
+        wrong_move_threshold: metres a non-target object may move before it counts as moved.
+        wrong_move_extra_steps: steps the episode goes on after a wrong object moved.
+        start_noise: half-width (scaled joint units) of the uniform random start around the
+            home pose; 0 starts every episode at home (the paper's training), > 0 gives the
+            random starts of Fig 11.
+    """
+
+    action_scale: Any = 1.0 / 3.0
+    touch_other_penalty: Any = -0.5
+    touch_target_penalty: Any = -0.3
+    wrong_move_threshold: Any = 0.01
+    wrong_move_extra_steps: Any = 3
+    start_noise: Any = 0.0
+
+    def validate(self) -> EnvParams:
+        """Check concrete values (skipped for traced ones). Returns self."""
+        checks = {
+            "action_scale": lambda v: v > 0,
+            "wrong_move_threshold": lambda v: v > 0,
+            "wrong_move_extra_steps": lambda v: v >= 0,
+            "start_noise": lambda v: v >= 0,
+        }
+        for name, ok in checks.items():
+            v = getattr(self, name)
+            if isinstance(v, jax.core.Tracer):
+                continue
+            arr = np.asarray(v)
+            if not np.all(np.isfinite(arr)) or not np.all(ok(arr)):
+                raise ValueError(f"{name}: invalid value {v!r}")
+        return self
+
+
+@struct.dataclass
+class Task:
+    """What to do: an action on the object at a position, in one of the 36 layouts.
+
+    All fields are int32 arrays (so a task can be traced, batched and replaced mid-episode).
+    Build one from names with :func:`make_task`.
+    """
+
+    action: jax.Array
+    position: jax.Array
+    layout: jax.Array
+
+
+@struct.dataclass
+class State:
+    """Everything an episode carries; a pytree whose structure never changes across steps."""
+
+    qpos: jax.Array
+    qvel: jax.Array
+    obs: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    task: Task
+    step: jax.Array  # RL steps taken in this episode
+    wrong_since: jax.Array  # step at which a wrong object first moved, -1 if none
+    object_start: jax.Array  # [3 shapes, 3] object positions at reset
+    sensordata: jax.Array
+    metrics: dict[str, jax.Array]
+    info: dict[str, jax.Array]
+
+
+def _index(value: Any, names: tuple[str, ...], field: str) -> int:
+    if isinstance(value, str):
+        if value not in names:
+            raise ValueError(f"{field}: unknown value {value!r}; accepted values: {names}")
+        return names.index(value)
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        if not 0 <= value < len(names):
+            raise ValueError(f"{field}: index {value} out of range; accepted: 0..{len(names) - 1}"
+                             f" for {names}")
+        return int(value)
+    raise ValueError(f"{field}: expected a name or an index, got {value!r}; "
+                     f"accepted values: {names}")
+
+
+def layout_names() -> tuple[str, ...]:
+    """Names of the 36 layouts, in index order (see :func:`scene.layout_name`)."""
+    return tuple(scene.layout_name(i) for i in range(len(scene.LAYOUTS)))
+
+
+def make_task(action: str | int, position: str | int, layout: str | int = 0) -> Task:
+    """A :class:`Task` from names or indices, validated.
+
+    Args:
+        action: ``"point"``, ``"touch"`` or ``"push"`` (or 0..2).
+        position: ``"left"``, ``"middle"`` or ``"right"`` (or 0..2).
+        layout: index 0..35 or a name from :func:`layout_names`.
+
+    Returns:
+        The task, as int32 scalars.
+
+    Raises:
+        ValueError: naming the field and the accepted values.
+    """
+    a = _index(action, scene.ACTIONS, "action")
+    p = _index(position, scene.POSITIONS, "position")
+    if isinstance(layout, str):
+        names = layout_names()
+        if layout not in names:
+            raise ValueError(f"layout: unknown value {layout!r}; accepted values: an index "
+                             f"0..35 or a name such as {names[0]!r} (see layout_names())")
+        lay = names.index(layout)
+    else:
+        lay = _index(layout, tuple(str(i) for i in range(len(scene.LAYOUTS))), "layout")
+    i32 = jnp.int32
+    return Task(action=jnp.asarray(a, i32), position=jnp.asarray(p, i32),
+                layout=jnp.asarray(lay, i32))
+
+
+def _check_task(task: Task) -> None:
+    """Range-check the concrete fields of a task (traced ones are checked by make_task)."""
+    for field, n in (("action", 3), ("position", 3), ("layout", len(scene.LAYOUTS))):
+        v = getattr(task, field)
+        if isinstance(v, jax.core.Tracer):
+            continue
+        arr = np.asarray(v)
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"task.{field}: expected integers, got dtype {arr.dtype}")
+        if arr.size and (arr.min() < 0 or arr.max() >= n):
+            raise ValueError(f"task.{field}: values must be in 0..{n - 1}, got {arr}")
+
+
+# ------------------------------------------------------------------------- joint scaling
+_LIMITS = jnp.asarray(np.radians(scene.PAPER_LIMITS_DEG), jnp.float32)
+
+
+def scale_joints(q: jax.Array) -> jax.Array:
+    """Eq. 1: joint angles (radians) -> [-1, 1] over the paper's limits."""
+    lo, hi = _LIMITS[:, 0], _LIMITS[:, 1]
+    return 2.0 * (q - lo) / (hi - lo) - 1.0
+
+
+def unscale_joints(j: jax.Array) -> jax.Array:
+    """Inverse of :func:`scale_joints`."""
+    lo, hi = _LIMITS[:, 0], _LIMITS[:, 1]
+    return lo + (j + 1.0) * 0.5 * (hi - lo)
+
+
+class Env:
+    """The environment for one static :class:`EnvConfig`.
+
+    ``reset`` and ``step`` are pure functions of their arguments and may be used under
+    ``jax.jit``, ``jax.vmap`` and ``jax.lax.scan`` on both backends.
+    """
+
+    def __init__(self, config: EnvConfig = EnvConfig()) -> None:
+        self.config = config
+        idx = scene.index()
+        self._idx = idx
+        self._physics_step, self._physics_forward = physics.make_physics(
+            config.backend, config.substeps)
+        self._qpos_home = jnp.asarray(scene.home_qpos(), jnp.float32)
+        self._shape_slot = jnp.asarray(scene.layout_shape_slots())  # [36, shape] -> position
+        slot_shape = np.argsort(scene.layout_shape_slots(), axis=1)  # [36, position] -> shape
+        self._slot_shape = jnp.asarray(slot_shape, jnp.int32)
+        self._object_pos = jnp.asarray(scene.object_positions(), jnp.float32)
+        self._pointing = scale_joints(jnp.asarray(scene.pointing_configs(), jnp.float32))
+        self._range = jnp.asarray(idx.joint_range, jnp.float32)
+        self._home_scaled = scale_joints(jnp.asarray(np.radians(scene.HOME_POSE_DEG),
+                                                     jnp.float32))
+
+    # ------------------------------------------------------------------ helpers
+    def _place(self, layout: jax.Array) -> jax.Array:
+        """qpos of the objects' free joints for a layout: [3 shapes, 7]."""
+        pos = self._object_pos[self._shape_slot[layout]]  # [shape, 3]
+        quat = jnp.broadcast_to(jnp.array([1.0, 0, 0, 0], jnp.float32), (3, 4))
+        return jnp.concatenate([pos, quat], axis=1)
+
+    def _objects(self, qpos: jax.Array) -> jax.Array:
+        return qpos[self._idx.object_qpos[:, :3]]  # [shape, 3]
+
+    def _observe(self, qpos, sensordata, task: Task) -> tuple[jax.Array, jax.Array]:
+        joints = scale_joints(qpos[self._idx.arm_qpos])
+        contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
+        touch = jnp.any(contacts).astype(jnp.float32)
+        obs = jnp.concatenate([
+            joints, touch[None], jax.nn.one_hot(task.action, 3), jax.nn.one_hot(task.position, 3)
+        ])
+        return obs, contacts
+
+    def _reward(self, qpos, sensordata, contacts, task: Task, object_start, params: EnvParams):
+        target_shape = self._slot_shape[task.layout, task.position]
+        joints = scale_joints(qpos[self._idx.arm_qpos])
+        point = -jnp.sum(jnp.abs(joints - self._pointing[task.position]))
+        palm = sensordata[self._idx.sensor_palm_pos]
+        dist = jnp.linalg.norm(palm - object_start[target_shape])
+        is_target = jnp.arange(3) == target_shape
+        touch_target = jnp.any(contacts & is_target)
+        touch_other = jnp.any(contacts & ~is_target)
+        touch = (-dist + jnp.where(touch_other, params.touch_other_penalty, 0.0)
+                 + jnp.where(touch_target, params.touch_target_penalty, 0.0))
+        reward = jnp.stack([point, touch, -dist])[task.action]
+        moved = jnp.linalg.norm(self._objects(qpos) - object_start, axis=1)  # [shape]
+        terms = {
+            "point_l1": -point,
+            "palm_target_dist": dist,
+            "touched_target": touch_target.astype(jnp.float32),
+            "touched_other": touch_other.astype(jnp.float32),
+            "target_moved": moved[target_shape],
+            "wrong_moved": jnp.any((moved > params.wrong_move_threshold) & ~is_target),
+        }
+        return reward.astype(jnp.float32), terms
+
+    # ------------------------------------------------------------------ API
+    def reset(self, key: jax.Array, task: Task, params: EnvParams = EnvParams()) -> State:
+        """Start an episode.
+
+        Args:
+            key: PRNG key (used for the random start pose when ``params.start_noise > 0``).
+            task: the :class:`Task` (see :func:`make_task`).
+            params: traced :class:`EnvParams`.
+
+        Returns:
+            The initial :class:`State` (reward is that of the start pose).
+        """
+        _check_task(task)
+        params.validate()
+        noise = jax.random.uniform(key, (4,), jnp.float32, -1.0, 1.0) * params.start_noise
+        q_arm = jnp.clip(unscale_joints(self._home_scaled + noise), self._range[:, 0],
+                         self._range[:, 1])
+        qpos = self._qpos_home.at[self._idx.arm_qpos].set(q_arm)
+        qpos = qpos.at[self._idx.object_qpos].set(self._place(task.layout))
+        qvel = jnp.zeros(self._idx.nv, jnp.float32)
+        sensordata = self._physics_forward(qpos, qvel)
+        object_start = self._objects(qpos)
+        obs, contacts = self._observe(qpos, sensordata, task)
+        reward, terms = self._reward(qpos, sensordata, contacts, task, object_start, params)
+        metrics = {**terms, "nan_actions": jnp.zeros((), jnp.float32)}
+        metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
+        return State(
+            qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=jnp.zeros((), bool), task=task,
+            step=jnp.zeros((), jnp.int32), wrong_since=jnp.full((), -1, jnp.int32),
+            object_start=object_start, sensordata=sensordata, metrics=metrics,
+            info={"palm_pos": sensordata[self._idx.sensor_palm_pos],
+                  "palm_force": sensordata[self._idx.sensor_palm_touch],
+                  "ctrl": q_arm},
+        )
+
+    def step(self, state: State, action: jax.Array, params: EnvParams = EnvParams()) -> State:
+        """Advance one RL step.
+
+        Args:
+            state: current :class:`State`.
+            action: ``[4]`` change of the scaled joints (before ``action_scale``).
+            params: traced :class:`EnvParams`.
+
+        Returns:
+            The next :class:`State` (same pytree structure and dtypes).
+        """
+        action = jnp.asarray(action)
+        if action.shape != (ACTION_SIZE,):
+            raise ValueError(f"action: expected shape ({ACTION_SIZE},), got {action.shape}")
+        params.validate()
+        action = action.astype(jnp.float32)
+        nan = jnp.isnan(action)
+        action = jnp.where(nan, 0.0, action)
+        target = scale_joints(state.qpos[self._idx.arm_qpos]) + params.action_scale * action
+        ctrl = jnp.clip(unscale_joints(target), self._range[:, 0], self._range[:, 1])
+        qpos, qvel, sensordata = self._physics_step(state.qpos, state.qvel, ctrl)
+        task = state.task
+        obs, contacts = self._observe(qpos, sensordata, task)
+        reward, terms = self._reward(qpos, sensordata, contacts, task, state.object_start,
+                                     params)
+        step = state.step + 1
+        wrong_since = jnp.where((state.wrong_since < 0) & terms["wrong_moved"], step,
+                                state.wrong_since)
+        ended = (step >= self.config.episode_length) | (
+            (wrong_since >= 0) & (step - wrong_since >= params.wrong_move_extra_steps))
+        metrics = {**terms, "nan_actions": state.metrics["nan_actions"] + jnp.sum(nan)}
+        metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
+        return state.replace(
+            qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=state.done | ended, step=step,
+            wrong_since=wrong_since, sensordata=sensordata, metrics=metrics,
+            info={"palm_pos": sensordata[self._idx.sensor_palm_pos],
+                  "palm_force": sensordata[self._idx.sensor_palm_touch], "ctrl": ctrl},
+        )
+
+    def set_task(self, state: State, task: Task) -> State:
+        """Replace the goal mid-episode (Fig 13): the arm and objects stay where they are.
+
+        The observation's action/position units switch at once; rewards from the next step on
+        refer to the new task, measured from where the objects stood at reset.
+        """
+        _check_task(task)
+        obs = state.obs.at[5:8].set(jax.nn.one_hot(task.action, 3))
+        obs = obs.at[8:11].set(jax.nn.one_hot(task.position, 3))
+        return state.replace(task=task, obs=obs)
+
+
+def make_env(backend: str = "mujoco", **kwargs: Any) -> Env:
+    """Shorthand for ``Env(EnvConfig(backend=backend, **kwargs))``."""
+    return Env(EnvConfig(backend=backend, **kwargs))

@@ -1,0 +1,176 @@
+"""Two physics backends behind one pure functional interface.
+
+Both advance a batch of scenes by ``substeps`` MuJoCo steps with a constant control and return
+the new ``(qpos, qvel)`` and the sensor readings of the last substep:
+
+- ``"mjx"``: pure JAX (``mujoco.mjx``), the path for GPUs;
+- ``"mujoco"``: C MuJoCo through a persistent ``mujoco.rollout.Rollout`` thread pool, called
+  from JAX with ``jax.pure_callback``, the fast path on CPUs.
+
+The physics state carried between RL steps is only ``qpos, qvel`` (float32). The solver's warm
+start is reset to zero at each RL step on both backends, so a step depends only on its inputs
+(and the two backends see the same problem).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from grounding_jax import scene
+
+BACKENDS = ("mujoco", "mjx")
+
+StepFn = Callable[[jax.Array, jax.Array, jax.Array], tuple[jax.Array, jax.Array, jax.Array]]
+ForwardFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+def check_backend(backend: str) -> str:
+    """Return ``backend`` or raise a ValueError naming the accepted values."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: unknown value {backend!r}; accepted values: {BACKENDS}")
+    return backend
+
+
+# --------------------------------------------------------------------------- C MuJoCo backend
+class _MujocoRunner:
+    """Holds the C model, one MjData per thread and the persistent rollout pool."""
+
+    def __init__(self, nthread: int) -> None:
+        from mujoco import rollout
+
+        self.model = scene.model()
+        self.nthread = nthread
+        self.datas = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self.pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        self.lock = threading.Lock()  # the pool and the MjData are not re-entrant
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self.nstate = mujoco.mj_stateSize(self.model, spec)
+        m = self.model
+        # FULLPHYSICS = time, qpos, qvel (+ act, mocap, eq_active, ... which this scene lacks)
+        if self.nstate != 1 + m.nq + m.nv:
+            raise RuntimeError(f"unexpected physics state size {self.nstate} for this scene")
+
+    def step(self, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, substeps: int):
+        m = self.model
+        lead = qpos.shape[:-1]
+        qp = np.asarray(qpos, np.float64).reshape(-1, m.nq)
+        qv = np.asarray(qvel, np.float64).reshape(-1, m.nv)
+        u = np.asarray(ctrl, np.float64).reshape(-1, 1, m.nu)
+        n = qp.shape[0]
+        state0 = np.concatenate([np.zeros((n, 1)), qp, qv], axis=1)
+        with self.lock:
+            states, sensors = self.pool.rollout(
+                m, self.datas, state0, u, nstep=substeps,
+                initial_warmstart=np.zeros((n, m.nv)),
+            )
+        last = states[:, -1]
+        return (
+            last[:, 1 : 1 + m.nq].astype(np.float32).reshape(*lead, m.nq),
+            last[:, 1 + m.nq :].astype(np.float32).reshape(*lead, m.nv),
+            sensors[:, -1].astype(np.float32).reshape(*lead, m.nsensordata),
+        )
+
+    def forward(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        m = self.model
+        lead = qpos.shape[:-1]
+        qp = np.asarray(qpos, np.float64).reshape(-1, m.nq)
+        qv = np.asarray(qvel, np.float64).reshape(-1, m.nv)
+        out = np.empty((qp.shape[0], m.nsensordata), np.float32)
+        with self.lock:
+            d = self.datas[0]
+            for i in range(qp.shape[0]):
+                d.qpos[:] = qp[i]
+                d.qvel[:] = qv[i]
+                d.ctrl[:] = qp[i, scene.index().arm_qpos]
+                d.qacc_warmstart[:] = 0.0
+                mujoco.mj_forward(m, d)
+                out[i] = d.sensordata
+        return out.reshape(*lead, m.nsensordata)
+
+
+@functools.cache
+def mujoco_runner(nthread: int | None = None) -> _MujocoRunner:
+    """The process-wide C MuJoCo runner (its thread pool is created once and kept)."""
+    if nthread is None:
+        nthread = int(os.environ.get("GROUNDING_JAX_THREADS", os.cpu_count() or 1))
+    return _MujocoRunner(nthread)
+
+
+def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
+    idx = scene.index()
+    f32 = jnp.float32
+
+    def step(qpos, qvel, ctrl):
+        shapes = (
+            jax.ShapeDtypeStruct(qpos.shape, f32),
+            jax.ShapeDtypeStruct(qvel.shape, f32),
+            jax.ShapeDtypeStruct(qpos.shape[:-1] + (idx.nsensordata,), f32),
+        )
+        return jax.pure_callback(
+            lambda q, v, u: mujoco_runner().step(q, v, u, substeps),
+            shapes, qpos, qvel, ctrl, vmap_method="broadcast_all",
+        )
+
+    def forward(qpos, qvel):
+        shape = jax.ShapeDtypeStruct(qpos.shape[:-1] + (idx.nsensordata,), f32)
+        return jax.pure_callback(
+            lambda q, v: mujoco_runner().forward(q, v), shape, qpos, qvel,
+            vmap_method="broadcast_all",
+        )
+
+    return step, forward
+
+
+# -------------------------------------------------------------------------------- MJX backend
+@functools.cache
+def mjx_model():
+    """The scene as an MJX model (device arrays), made once per process."""
+    from mujoco import mjx
+
+    return mjx.put_model(scene.model())
+
+
+def _mjx_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
+    from mujoco import mjx
+
+    mx = mjx_model()
+    idx = scene.index()
+
+    def _data(qpos, qvel):
+        d = mjx.make_data(mx)
+        return d.replace(qpos=qpos, qvel=qvel, ctrl=qpos[idx.arm_qpos])
+
+    def step(qpos, qvel, ctrl):
+        d = _data(qpos, qvel).replace(ctrl=ctrl)
+        d = jax.lax.fori_loop(0, substeps, lambda _, x: mjx.step(mx, x), d)
+        return d.qpos, d.qvel, d.sensordata
+
+    def forward(qpos, qvel):
+        return mjx.forward(mx, _data(qpos, qvel)).sensordata
+
+    return step, forward
+
+
+def make_physics(backend: str, substeps: int) -> tuple[StepFn, ForwardFn]:
+    """The backend's ``step(qpos, qvel, ctrl) -> (qpos, qvel, sensordata)`` and
+    ``forward(qpos, qvel) -> sensordata``, both pure JAX functions (jit/vmap/scan-safe).
+
+    Args:
+        backend: ``"mujoco"`` (C MuJoCo rollouts, CPU) or ``"mjx"`` (pure JAX).
+        substeps: MuJoCo steps per call, with the control held constant.
+
+    Returns:
+        ``(step, forward)``.
+    """
+    check_backend(backend)
+    if backend == "mujoco":
+        return _mujoco_fns(substeps)
+    return _mjx_fns(substeps)
