@@ -58,9 +58,9 @@ _EYE_OFFSET = (-0.07, 0.034, 0.06)
 _EYE_FOVY = 50.0
 
 # Position servos on the arm joints: stiff enough that a commanded change of a few degrees is
-# reached within one RL step (10 substeps x 5 ms), damped so it does not overshoot.
-ACTUATOR_KP = 60.0
-JOINT_DAMPING = 6.0
+# ~87% reached within one RL step (10 substeps x 5 ms) and all of it in two, overshoot < 3%.
+ACTUATOR_KP = 500.0
+JOINT_DAMPING = 15.0
 JOINT_ARMATURE = 0.02
 
 # Geom groups (for rendering): 0 scene, 2 robot visual meshes, 3 collision-only helpers.

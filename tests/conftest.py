@@ -1,0 +1,43 @@
+"""Shared, compiled-once fixtures: the suite compiles each env function once per session."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+import grounding_jax as gj
+from grounding_jax import rollout, scripted
+
+
+def _scripted_runner(env: gj.Env):
+    def run(waypoints, task, params):
+        policy = lambda s: scripted.tracking_action(waypoints, s.step, s.obs)  # noqa: E731
+        return rollout.run_episode(env, jax.random.key(0), task, policy, params)
+
+    return jax.jit(run)
+
+
+@pytest.fixture(scope="session")
+def env_c() -> gj.Env:
+    return gj.make_env("mujoco")
+
+
+@pytest.fixture(scope="session")
+def env_mjx() -> gj.Env:
+    return gj.make_env("mjx")
+
+
+@pytest.fixture(scope="session")
+def run_c(env_c):
+    return _scripted_runner(env_c)
+
+
+@pytest.fixture(scope="session")
+def run_mjx(env_mjx):
+    return _scripted_runner(env_mjx)
+
+
+@pytest.fixture(scope="session")
+def push_waypoints():
+    return {p: jnp.asarray(scripted.push_waypoints(p)) for p in range(3)}
