@@ -1,0 +1,100 @@
+"""The MJX and C MuJoCo backends agree (issue 3, item 4).
+
+Measured on this scene (float32 MJX vs float64 C, 10 substeps of 5 ms per RL step):
+- free motion agrees to ~1.3e-4 rad and the sphere push to ~5e-6 rad / ~0.1 mm over 75 steps;
+- pushes of the box and the cylinder do not agree to 1 mm: MJX collides a capsule with a box
+  through its generic convex routine and with a cylinder through its own capsule-cylinder
+  routine, while C MuJoCo uses its analytic box-capsule and CCD-based cylinder code. Contact
+  points and normals differ, so a single RL step in contact differs by up to ~0.02 rad in the
+  joints and ~2 cm in where the box ends up; over an episode the box's final position differs
+  by up to ~7 cm (it is shoved, then slides). These tests therefore hold the box/cylinder
+  pushes to what does agree: the arm's path (0.03 rad), the palm-target distance (5 mm), which
+  object moved, and when a wrong-object bump ends the episode (within one step).
+See README ("Backends") for the full table.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import grounding_jax as gj
+from grounding_jax import scene, scripted
+
+pytestmark = pytest.mark.mjx
+IDX = scene.index()
+
+
+def _both(run_c, run_mjx, waypoints, task):
+    out = []
+    for run in (run_c, run_mjx):
+        first, traj = run(waypoints, task, gj.EnvParams())
+        out.append(jax.device_get((first, traj)))
+    return out
+
+
+def _objects(qpos):
+    return np.asarray(qpos)[..., IDX.object_qpos[:, :3]]
+
+
+def test_free_motion_agrees_tightly(run_c, run_mjx):
+    # track the pointing pose of each position: no contact at all
+    for p in range(3):
+        w = np.repeat(scene.pointing_configs()[p][None], 75, axis=0)
+        (_, c), (_, x) = _both(run_c, run_mjx, w, gj.make_task("point", p, 0))
+        dj = np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max()
+        assert dj < 5e-4, f"position {p}: joints differ by {dj} rad"  # measured 1.3e-4
+        np.testing.assert_allclose(c.reward, x.reward, atol=1e-4)
+        assert float(c.metrics["point_l1"][-1]) < 0.01  # and it got there
+
+
+def test_sphere_push_agrees_within_1e3_rad_and_1mm(run_c, run_mjx, push_waypoints):
+    (f, c), (_, x) = _both(run_c, run_mjx, push_waypoints[2], gj.make_task("push", 2, 0))
+    assert np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max() < 1e-3
+    assert np.linalg.norm(_objects(c.qpos) - _objects(x.qpos), axis=-1).max() < 1e-3
+    sphere = scene.SHAPES.index("sphere")
+    assert np.linalg.norm(_objects(c.qpos[-1])[sphere] - _objects(f.qpos)[sphere]) > 0.02
+
+
+@pytest.mark.parametrize("position", [0, 1])
+def test_box_and_cylinder_pushes_agree_on_what_happens(run_c, run_mjx, push_waypoints,
+                                                       position):
+    task = gj.make_task("push", position, 0)
+    (f, c), (_, x) = _both(run_c, run_mjx, push_waypoints[position], task)
+    assert np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max() < 0.03
+    np.testing.assert_allclose(c.metrics["palm_target_dist"], x.metrics["palm_target_dist"],
+                               atol=5e-3)
+    target = list(scene.layout_shape_slots()[0]).index(position)
+    for traj in (c, x):
+        moved = np.linalg.norm(_objects(traj.qpos[-1]) - _objects(f.qpos), axis=-1)
+        assert moved[target] > 0.02
+        assert np.delete(moved, target).max() < 1e-3
+    # contact begins at the same step on both
+    assert np.argmax(c.metrics["touched_target"]) == np.argmax(x.metrics["touched_target"])
+
+
+def test_wrong_object_bump_ends_the_episode_on_both(run_c, run_mjx, push_waypoints):
+    task = gj.make_task("push", "middle", 0)
+    (_, c), (_, x) = _both(run_c, run_mjx, push_waypoints[0], task)
+    ends = [int(np.argmax(t.done)) for t in (c, x)]
+    assert all(t.done[-1] for t in (c, x))
+    assert ends[0] < 74 and abs(ends[0] - ends[1]) <= 1
+    # before the bump the two runs are the same to 1e-4 rad
+    first_contact = int(np.argmax(c.metrics["touched_other"]))
+    pre = slice(0, first_contact)
+    assert np.abs(c.qpos[pre][:, IDX.arm_qpos] - x.qpos[pre][:, IDX.arm_qpos]).max() < 1e-4
+
+
+def test_vmap_jit_scan_work_on_mjx(env_mjx):
+    keys = jax.random.split(jax.random.key(0), 3)
+    tasks = jax.vmap(lambda a: gj.Task(a, a, a))(np.arange(3, dtype=np.int32))
+    w = np.asarray(scripted.push_waypoints(1))
+
+    def run(key, task):
+        from grounding_jax import rollout
+        pol = lambda s: scripted.tracking_action(w, s.step, s.obs)  # noqa: E731
+        return rollout.run_episode(env_mjx, key, task, pol, steps=5)[1].reward
+
+    r = jax.jit(jax.vmap(run))(keys, tasks)
+    assert r.shape == (3, 5) and np.isfinite(np.asarray(r)).all()
