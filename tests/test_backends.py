@@ -45,7 +45,7 @@ def test_free_motion_agrees_tightly(run_c, run_mjx):
         (_, c), (_, x) = _both(run_c, run_mjx, w, gj.make_task("point", p, 0))
         dj = np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max()
         assert dj < 5e-4, f"position {p}: joints differ by {dj} rad"  # measured 1.3e-4
-        np.testing.assert_allclose(c.reward, x.reward, atol=1e-4)
+        np.testing.assert_allclose(c.reward, x.reward, atol=1e-3)
         assert float(c.metrics["point_l1"][-1]) < 0.01  # and it got there
 
 
