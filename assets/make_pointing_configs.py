@@ -3,8 +3,8 @@
 The paper stores, for each object position, the joint angles at which the fingers point at the
 object; the point reward is the L1 distance to them. Here: the palm site is placed
 ``CLEARANCE`` above the top centre of the object, palm facing down as far as the four joints
-allow (in the null space of the position task), by damped least squares from many starts, within the model's joint limits. The
-hand must not touch any object in that pose (checked).
+allow (in the null space of the position task), by damped least squares from many starts,
+within the model's joint limits. The hand must not touch any object in that pose (checked).
 
 Run once, from the repository root:  ``python assets/make_pointing_configs.py``
 """
@@ -22,6 +22,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 from grounding_jax import ik, scene  # noqa: E402
 
 CLEARANCE = 0.01  # metres between the palm site and the object's top
+
+
 def _nearest_samples(target: np.ndarray, rng: np.random.Generator, n: int = 20) -> np.ndarray:
     """Starts for the local solver: the random joint samples whose palm lands nearest."""
     m = scene.model()

@@ -99,6 +99,9 @@ class EnvParams:
         return self
 
 
+DEFAULT_PARAMS = EnvParams()
+
+
 @struct.dataclass
 class Task:
     """What to do: an action on the object at a position, in one of the 36 layouts.
@@ -273,7 +276,7 @@ class Env:
         return reward.astype(jnp.float32), terms
 
     # ------------------------------------------------------------------ API
-    def reset(self, key: jax.Array, task: Task, params: EnvParams = EnvParams()) -> State:
+    def reset(self, key: jax.Array, task: Task, params: EnvParams = DEFAULT_PARAMS) -> State:
         """Start an episode.
 
         Args:
@@ -307,7 +310,7 @@ class Env:
                   "ctrl": q_arm},
         )
 
-    def step(self, state: State, action: jax.Array, params: EnvParams = EnvParams()) -> State:
+    def step(self, state: State, action: jax.Array, params: EnvParams = DEFAULT_PARAMS) -> State:
         """Advance one RL step.
 
         Args:

@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 
-from grounding_jax.env import Env, EnvParams, State, Task
+from grounding_jax.env import DEFAULT_PARAMS, Env, EnvParams, State, Task
 
 Policy = Callable[[State], jax.Array]
 
 
 def run_episode(env: Env, key: jax.Array, task: Task, policy: Policy,
-                params: EnvParams = EnvParams(), steps: int | None = None
+                params: EnvParams = DEFAULT_PARAMS, steps: int | None = None
                 ) -> tuple[State, State]:
     """Reset, then step ``steps`` times (default: the episode length) with ``policy(state)``.
 

@@ -31,7 +31,9 @@ ACTIONS = ("point", "touch", "push")
 POSITIONS = ("left", "middle", "right")
 SHAPES = ("box", "cylinder", "sphere")
 COLOURS = ("red", "green", "blue")
-COLOUR_RGBA = {"red": (0.9, 0.1, 0.1, 1.0), "green": (0.1, 0.8, 0.1, 1.0), "blue": (0.1, 0.2, 0.9, 1.0)}
+COLOUR_RGBA = {
+    "red": (0.9, 0.1, 0.1, 1.0), "green": (0.1, 0.8, 0.1, 1.0), "blue": (0.1, 0.2, 0.9, 1.0)
+}
 
 #: Object centres on the table, one per position (robot frame: x backward, y right, z up).
 TABLE_Z = -0.05
@@ -275,7 +277,7 @@ def layout_shape_slots() -> np.ndarray:
 def layout_name(i: int) -> str:
     """Human-readable layout, e.g. ``'box/red cylinder/green sphere/blue'`` (left to right)."""
     shapes, colours = LAYOUTS[i]
-    return " ".join(f"{s}/{c}" for s, c in zip(shapes, colours))
+    return " ".join(f"{s}/{c}" for s, c in zip(shapes, colours, strict=True))
 
 
 def home_qpos() -> np.ndarray:

@@ -73,7 +73,7 @@ def test_rewards_match_hand_computed_values(env_c, run_c, push_waypoints, action
     touched = np.asarray(traj.metrics["touched_target"])
     assert touched.any(), "the scripted push must touch the target"
     for t in [0, int(np.argmax(touched)), 74]:
-        st = jax.tree.map(lambda x: x[t], traj)
+        st = jax.tree.map(lambda x, t=t: x[t], traj)
         assert float(st.reward) == pytest.approx(_expected_reward(st, action, 1, 7), abs=1e-4)
     assert float(first.reward) == pytest.approx(_expected_reward(first, action, 1, 7), abs=1e-4)
 
@@ -134,8 +134,8 @@ def test_vmapped_batch_equals_a_loop_of_single_envs(env_c):
     batched = jax.jit(jax.vmap(run))(keys, tasks, jnp.swapaxes(actions, 0, 1))
     single = jax.jit(run)
     for i in range(4):
-        one = single(keys[i], jax.tree.map(lambda x: x[i], tasks), actions[:, i])
-        for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(batched)):
+        one = single(keys[i], jax.tree.map(lambda x, i=i: x[i], tasks), actions[:, i])
+        for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(batched), strict=True):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b)[i], rtol=0, atol=1e-6)
 
 
@@ -143,7 +143,7 @@ def test_step_keeps_the_state_pytree_structure_and_dtypes(env_c):
     st = env_c.reset(jax.random.key(0), gj.make_task("point", "left"))
     nxt = env_c.step(st, jnp.zeros(4))
     assert jax.tree.structure(st) == jax.tree.structure(nxt)
-    for a, b in zip(jax.tree.leaves(st), jax.tree.leaves(nxt)):
+    for a, b in zip(jax.tree.leaves(st), jax.tree.leaves(nxt), strict=True):
         assert a.shape == b.shape and a.dtype == b.dtype
 
 
