@@ -243,18 +243,15 @@ class Env:
     def _objects(self, qpos: jax.Array) -> jax.Array:
         return qpos[self._idx.object_qpos[:, :3]]  # [shape, 3]
 
-    def _observe(self, qpos, sensordata, task: Task) -> tuple[jax.Array, jax.Array]:
+    def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams):
+        """Observation, reward and per-step metrics of a physics state."""
         joints = scale_joints(qpos[self._idx.arm_qpos])
         contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
-        touch = jnp.any(contacts).astype(jnp.float32)
         obs = jnp.concatenate([
-            joints, touch[None], jax.nn.one_hot(task.action, 3), jax.nn.one_hot(task.position, 3)
+            joints, jnp.any(contacts).astype(jnp.float32)[None],
+            jax.nn.one_hot(task.action, 3), jax.nn.one_hot(task.position, 3)
         ])
-        return obs, contacts
-
-    def _reward(self, qpos, sensordata, contacts, task: Task, object_start, params: EnvParams):
         target_shape = self._slot_shape[task.layout, task.position]
-        joints = scale_joints(qpos[self._idx.arm_qpos])
         point = -jnp.sum(jnp.abs(joints - self._pointing[task.position]))
         palm = sensordata[self._idx.sensor_palm_pos]
         dist = jnp.linalg.norm(palm - object_start[target_shape])
@@ -273,7 +270,11 @@ class Env:
             "target_moved": moved[target_shape],
             "wrong_moved": jnp.any((moved > params.wrong_move_threshold) & ~is_target),
         }
-        return reward.astype(jnp.float32), terms
+        return obs, reward.astype(jnp.float32), terms
+
+    def _info(self, sensordata: jax.Array, ctrl: jax.Array) -> dict[str, jax.Array]:
+        return {"palm_pos": sensordata[self._idx.sensor_palm_pos],
+                "palm_force": sensordata[self._idx.sensor_palm_touch], "ctrl": ctrl}
 
     # ------------------------------------------------------------------ API
     def reset(self, key: jax.Array, task: Task, params: EnvParams = DEFAULT_PARAMS) -> State:
@@ -297,17 +298,14 @@ class Env:
         qvel = jnp.zeros(self._idx.nv, jnp.float32)
         sensordata = self._physics_forward(qpos, qvel)
         object_start = self._objects(qpos)
-        obs, contacts = self._observe(qpos, sensordata, task)
-        reward, terms = self._reward(qpos, sensordata, contacts, task, object_start, params)
+        obs, reward, terms = self._evaluate(qpos, sensordata, task, object_start, params)
         metrics = {**terms, "nan_actions": jnp.zeros((), jnp.float32)}
         metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
         return State(
             qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=jnp.zeros((), bool), task=task,
             step=jnp.zeros((), jnp.int32), wrong_since=jnp.full((), -1, jnp.int32),
             object_start=object_start, sensordata=sensordata, metrics=metrics,
-            info={"palm_pos": sensordata[self._idx.sensor_palm_pos],
-                  "palm_force": sensordata[self._idx.sensor_palm_touch],
-                  "ctrl": q_arm},
+            info=self._info(sensordata, q_arm),
         )
 
     def step(self, state: State, action: jax.Array, params: EnvParams = DEFAULT_PARAMS) -> State:
@@ -331,10 +329,8 @@ class Env:
         target = scale_joints(state.qpos[self._idx.arm_qpos]) + params.action_scale * action
         ctrl = jnp.clip(unscale_joints(target), self._range[:, 0], self._range[:, 1])
         qpos, qvel, sensordata = self._physics_step(state.qpos, state.qvel, ctrl)
-        task = state.task
-        obs, contacts = self._observe(qpos, sensordata, task)
-        reward, terms = self._reward(qpos, sensordata, contacts, task, state.object_start,
-                                     params)
+        obs, reward, terms = self._evaluate(qpos, sensordata, state.task, state.object_start,
+                                            params)
         step = state.step + 1
         wrong_since = jnp.where((state.wrong_since < 0) & terms["wrong_moved"], step,
                                 state.wrong_since)
@@ -345,8 +341,7 @@ class Env:
         return state.replace(
             qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=state.done | ended, step=step,
             wrong_since=wrong_since, sensordata=sensordata, metrics=metrics,
-            info={"palm_pos": sensordata[self._idx.sensor_palm_pos],
-                  "palm_force": sensordata[self._idx.sensor_palm_touch], "ctrl": ctrl},
+            info=self._info(sensordata, ctrl),
         )
 
     def set_task(self, state: State, task: Task) -> State:
