@@ -31,8 +31,9 @@ ACTIONS = ("point", "touch", "push")
 POSITIONS = ("left", "middle", "right")
 SHAPES = ("box", "cylinder", "sphere")
 COLOURS = ("red", "green", "blue")
+# Saturated and dark enough that every face is well below the white table in grey (vision).
 COLOUR_RGBA = {
-    "red": (0.9, 0.1, 0.1, 1.0), "green": (0.1, 0.8, 0.1, 1.0), "blue": (0.1, 0.2, 0.9, 1.0)
+    "red": (0.75, 0.08, 0.08, 1.0), "green": (0.08, 0.5, 0.08, 1.0), "blue": (0.1, 0.15, 0.75, 1.0)
 }
 
 #: Object centres on the table, one per position (robot frame: x backward, y right, z up).

@@ -1,0 +1,278 @@
+"""Target localizer (TL): MLP (1200 + 15 n) -> H sigmoid -> 3 sigmoid, winner-take-all.
+
+Trained as the paper did: plain online back-propagation (one pattern at a time, order shuffled
+every epoch) of the squared error of the sigmoid outputs, learning rate 0.1, 500-600 epochs.
+
+Everything is a pure function and ``vmap``-able over seeds and hyperparameters. The hidden
+size and the replication factor ``n`` change shapes; here they are *traced*: the network is
+built at padded sizes (``TLConfig.max_hidden``, ``TLConfig.max_replication``) and masked --
+masked hidden units output 0 and masked input replicas are 0, so neither takes part in the
+forward pass or gets a gradient, and the result equals that of the unpadded network. One
+compile then serves a whole sweep (``benchmarks/tl_throughput.py`` compares this with one
+compile per shape group).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from grounding_jax import tl_data
+
+N_OUT = 3
+N_SYMBOLS = 15
+N_PIXELS = 1200
+NOISE_MODES = ("fixed", "fresh")
+
+
+@dataclasses.dataclass(frozen=True)
+class TLConfig:
+    """Static configuration (changes compiled code).
+
+    Attributes:
+        epochs: sweeps through the training set.
+        max_hidden: padded hidden size (>= every hidden size in the batch).
+        max_replication: padded replication factor (>= every n in the batch).
+        eval_every: record train/test accuracy every this many epochs.
+        noise_mode: ``"fixed"`` -- each pattern's pixels are flipped once, before training
+            (a fixed noisy data set); ``"fresh"`` -- a new flip at every presentation of a
+            training pattern (test patterns keep one fixed draw).
+    """
+
+    epochs: int = 600
+    max_hidden: int = 50
+    max_replication: int = 20
+    eval_every: int = 10
+    noise_mode: str = "fixed"
+
+    def __post_init__(self) -> None:
+        if self.noise_mode not in NOISE_MODES:
+            raise ValueError(f"noise_mode: unknown value {self.noise_mode!r}; accepted values: "
+                             f"{NOISE_MODES}")
+        for name in ("epochs", "max_hidden", "max_replication", "eval_every"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+
+    @property
+    def n_inputs(self) -> int:
+        return N_PIXELS + N_SYMBOLS * self.max_replication
+
+
+@struct.dataclass
+class TLHyper:
+    """Traced hyperparameters (scalars, or arrays with a leading batch axis under vmap).
+
+    Attributes:
+        lr: learning rate (paper: 0.1).
+        hidden: hidden units in use (paper: 50).
+        replication: times the 15 colour + target units are repeated (paper: 20).
+        noise: probability that each bitmap pixel is flipped (fixed per pattern; paper: 0.1).
+    """
+
+    lr: Any = 0.1
+    hidden: Any = 50
+    replication: Any = 20
+    noise: Any = 0.0
+
+
+def validate(hp: TLHyper, config: TLConfig) -> None:
+    """Raise ValueError naming the field for bad concrete values (before any compile)."""
+    lr, hid, rep, noise = (np.asarray(getattr(hp, f)) for f in
+                           ("lr", "hidden", "replication", "noise"))
+    if not np.all(np.isfinite(lr)) or np.any(lr <= 0):
+        raise ValueError(f"lr: must be > 0, got {lr}")
+    if np.any(hid < 1) or np.any(hid != np.round(hid)):
+        raise ValueError(f"hidden: must be an integer >= 1, got {hid}")
+    if np.any(hid > config.max_hidden):
+        raise ValueError(f"hidden: {hid.max()} exceeds max_hidden={config.max_hidden}")
+    if np.any(rep < 1) or np.any(rep != np.round(rep)):
+        raise ValueError(f"replication (n): must be an integer >= 1, got {rep}")
+    if np.any(rep > config.max_replication):
+        raise ValueError(f"replication (n): {rep.max()} exceeds max_replication="
+                         f"{config.max_replication}")
+    if np.any(noise < 0) or np.any(noise > 1):
+        raise ValueError(f"noise: must be in [0, 1], got {noise}")
+
+
+@struct.dataclass
+class TLParams:
+    w1: jax.Array  # [n_inputs, max_hidden]
+    b1: jax.Array
+    w2: jax.Array  # [max_hidden, 3]
+    b2: jax.Array
+
+
+def masks(hp: TLHyper, config: TLConfig) -> tuple[jax.Array, jax.Array]:
+    """(input mask [n_inputs], hidden mask [max_hidden]) for the traced sizes."""
+    rep = jnp.repeat(jnp.arange(config.max_replication) < hp.replication, N_SYMBOLS)
+    in_mask = jnp.concatenate([jnp.ones(N_PIXELS, bool), rep]).astype(jnp.float32)
+    hid_mask = (jnp.arange(config.max_hidden) < hp.hidden).astype(jnp.float32)
+    return in_mask, hid_mask
+
+
+def init(key: jax.Array, hp: TLHyper, config: TLConfig) -> TLParams:
+    """Uniform weights in +-1/sqrt(fan-in) of the *used* sizes; zero biases.
+
+    Each hidden unit's weights, and each replica's block of them, come from their own
+    ``fold_in`` of the key, so the used part of the network does not depend on the padded
+    sizes: a padded, masked network starts exactly as the unpadded one would.
+
+    Args:
+        key: PRNG key.
+        hp: hyperparameters (hidden, replication set the fan-ins).
+        config: static sizes.
+
+    Returns:
+        Parameters at the padded sizes.
+    """
+    k1, k2 = jax.random.split(key)
+    fan1 = (N_PIXELS + N_SYMBOLS * jnp.asarray(hp.replication)).astype(jnp.float32)
+    a1 = 1.0 / jnp.sqrt(fan1)
+    a2 = 1.0 / jnp.sqrt(jnp.asarray(hp.hidden, jnp.float32))
+
+    def unit_in(j):  # incoming weights of hidden unit j: pixels, then one block per replica
+        kj = jax.random.fold_in(k1, j)
+        pix = jax.random.uniform(jax.random.fold_in(kj, 0), (N_PIXELS,), jnp.float32, -1, 1)
+        reps = jax.vmap(lambda r: jax.random.uniform(jax.random.fold_in(kj, r + 1),
+                                                     (N_SYMBOLS,), jnp.float32, -1, 1))(
+            jnp.arange(config.max_replication))
+        return jnp.concatenate([pix, reps.reshape(-1)])
+
+    def unit_out(j):
+        return jax.random.uniform(jax.random.fold_in(k2, j), (N_OUT,), jnp.float32, -1, 1)
+
+    units = jnp.arange(config.max_hidden)
+    w1 = jax.vmap(unit_in, out_axes=1)(units) * a1
+    w2 = jax.vmap(unit_out)(units) * a2
+    return TLParams(w1=w1, b1=jnp.zeros(config.max_hidden), w2=w2, b2=jnp.zeros(N_OUT))
+
+
+def apply(params: TLParams, x: jax.Array, hid_mask: jax.Array | None = None
+          ) -> tuple[jax.Array, jax.Array]:
+    """Forward pass.
+
+    Args:
+        params: network parameters.
+        x: input ``[..., n_inputs]`` (masked replicas already zero).
+        hid_mask: ``[max_hidden]`` 0/1 mask of the hidden units in use (None: all).
+
+    Returns:
+        (hidden activations, outputs in (0, 1)); the position is ``argmax`` of the outputs.
+    """
+    h = jax.nn.sigmoid(x @ params.w1 + params.b1)
+    if hid_mask is not None:
+        h = h * hid_mask
+    return h, jax.nn.sigmoid(h @ params.w2 + params.b2)
+
+
+def _loss(params: TLParams, x: jax.Array, target: jax.Array, hid_mask: jax.Array):
+    _, y = apply(params, x, hid_mask)
+    return 0.5 * jnp.sum((y - target) ** 2)
+
+
+def build_inputs(bitmaps: jax.Array, symbols: jax.Array, hp: TLHyper, config: TLConfig
+                 ) -> jax.Array:
+    """Padded inputs ``[N, n_inputs]``: bitmap, then the 15 symbols x max_replication, masked."""
+    in_mask, _ = masks(hp, config)
+    sym = jnp.tile(symbols, (1, config.max_replication))
+    return jnp.concatenate([bitmaps, sym], axis=1) * in_mask
+
+
+def make_train(config: TLConfig, data: tl_data.TLData | None = None):
+    """Build ``train(key, hp) -> (params, metrics)`` over the 216 configurations.
+
+    The key is split once into: the train/test split (2/3 : 1/3), the pixel noise, the
+    initial weights and the per-epoch shuffles.
+
+    Returns:
+        A pure function; ``metrics`` holds ``train_acc``/``test_acc``/``train_rmse``/
+        ``test_rmse`` every ``eval_every`` epochs (``[epochs // eval_every]``) and the final
+        values (``final_train_acc``, ``final_test_acc``).
+    """
+    data = tl_data.load() if data is None else data
+    bitmaps = jnp.asarray(data.bitmaps)
+    symbols = jnp.asarray(data.symbols)
+    labels = jnp.asarray(data.labels)
+    targets = jax.nn.one_hot(labels, N_OUT)
+    n_all = labels.shape[0]
+    n_train = int(round(2 / 3 * n_all))
+    grad = jax.grad(_loss)
+
+    def train(key: jax.Array, hp: TLHyper) -> tuple[TLParams, dict[str, jax.Array]]:
+        k_split, k_noise, k_init, k_epochs = jax.random.split(key, 4)
+        perm = jax.random.permutation(k_split, n_all)
+        tr, te = perm[:n_train], perm[n_train:]
+        flip = jax.random.bernoulli(k_noise, hp.noise, bitmaps.shape)
+        noisy = jnp.where(flip, 1.0 - bitmaps, bitmaps)
+        x_all = build_inputs(noisy, symbols, hp, config)
+        _, hid_mask = masks(hp, config)
+        params = init(k_init, hp, config)
+
+        def evaluate(p):
+            _, y = apply(p, x_all, hid_mask)
+            correct = (jnp.argmax(y, -1) == labels).astype(jnp.float32)
+            err = jnp.mean((y - targets) ** 2, axis=-1)
+            return (correct[tr].mean(), correct[te].mean(), jnp.sqrt(err[tr].mean()),
+                    jnp.sqrt(err[te].mean()))
+
+        clean = build_inputs(bitmaps, symbols, hp, config)
+        pixel = jnp.arange(config.n_inputs) < N_PIXELS
+
+        def sgd(p, i_k):
+            i, k = i_k
+            x = x_all[i]
+            if config.noise_mode == "fresh":
+                flip_now = jax.random.bernoulli(k, hp.noise, x.shape) & pixel
+                x = jnp.where(flip_now, 1.0 - clean[i], clean[i])
+            g = grad(p, x, targets[i], hid_mask)
+            return jax.tree.map(lambda w, d: w - hp.lr * d, p, g), None
+
+        def epoch(p, k):
+            k_order, k_flip = jax.random.split(k)
+            order = tr[jax.random.permutation(k_order, n_train)]
+            return jax.lax.scan(sgd, p, (order, jax.random.split(k_flip, n_train)))[0]
+
+        def block(p, keys):  # eval_every epochs, then one evaluation
+            p = jax.lax.fori_loop(0, keys.shape[0], lambda j, q: epoch(q, keys[j]), p)
+            return p, evaluate(p)
+
+        keys = jax.random.split(k_epochs, config.epochs)
+        n_blocks = config.epochs // config.eval_every
+        blocks = keys[: n_blocks * config.eval_every].reshape(n_blocks, config.eval_every)
+        params, curves = jax.lax.scan(block, params, blocks)
+        params = jax.lax.fori_loop(n_blocks * config.eval_every, config.epochs,
+                                   lambda j, q: epoch(q, keys[j]), params)
+        final = evaluate(params)
+        metrics = {
+            "train_acc": curves[0], "test_acc": curves[1], "train_rmse": curves[2],
+            "test_rmse": curves[3], "final_train_acc": final[0], "final_test_acc": final[1],
+            "final_train_rmse": final[2], "final_test_rmse": final[3],
+        }
+        return params, metrics
+
+    return train
+
+
+def localize(params: TLParams, bitmap: jax.Array, symbols: jax.Array, replication: int,
+             hidden: int) -> jax.Array:
+    """Position (0 left, 1 middle, 2 right) of the named object, by winner-take-all.
+
+    Args:
+        params: trained parameters (padded sizes are read from their shapes).
+        bitmap: ``[1200]`` edge bitmap.
+        symbols: ``[15]`` colour + target units.
+        replication: the n the network was trained with.
+        hidden: the hidden size it was trained with.
+    """
+    cfg = TLConfig(max_hidden=params.w1.shape[1],
+                   max_replication=(params.w1.shape[0] - N_PIXELS) // N_SYMBOLS)
+    hp = TLHyper(hidden=hidden, replication=replication)
+    x = build_inputs(bitmap[None], symbols[None], hp, cfg)[0]
+    _, hid_mask = masks(hp, cfg)
+    return jnp.argmax(apply(params, x, hid_mask)[1])

@@ -1,0 +1,134 @@
+"""TL data and MLP: labels, input sizes, learning, vmap equivalence, padding, bad input."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from grounding_jax import scene, tl, tl_data, tl_experiments
+
+
+@pytest.fixture(scope="module")
+def data():
+    return tl_data.load()
+
+
+def test_labels_of_all_216_configurations(data):
+    assert len(data.labels) == 216
+    slots = scene.layout_shape_slots()
+    for i in range(216):
+        layout, word = divmod(i, 6)
+        name = tl_data.TARGET_WORDS[word]
+        if name in scene.SHAPES:  # shape word: where that shape stands
+            expected = slots[layout][scene.SHAPES.index(name)]
+        else:  # colour word: where that colour stands
+            expected = scene.LAYOUTS[layout][1].index(name)
+        assert data.labels[i] == expected
+    assert np.bincount(data.labels).tolist() == [72, 72, 72]
+    # each configuration is (layout, word) once
+    assert len({(int(a), int(b)) for a, b in zip(data.layout, data.word, strict=True)}) == 216
+
+
+def test_symbol_units_encode_colours_and_target(data):
+    # layout 1: box/red cylinder/blue sphere/green (colour order red, blue, green)
+    u = tl_data.symbol_units(1, "green")
+    np.testing.assert_array_equal(u[:9], [1, 0, 0, 0, 0, 1, 0, 1, 0])
+    np.testing.assert_array_equal(u[9:], [0, 0, 0, 0, 1, 0])
+    assert tl_data.label_of(1, tl_data.word_index("green")) == 2
+
+
+def test_replication_gives_exactly_1500_inputs_at_n20(data):
+    assert tl_data.inputs(data, 20).shape == (216, 1500)
+    assert tl_data.inputs(data, 1).shape == (216, 1215)
+    x = tl_data.inputs(data, 3)
+    np.testing.assert_array_equal(x[:, 1200:1215], x[:, 1230:1245])
+
+
+@pytest.mark.parametrize("call, field", [
+    (lambda d: tl_data.inputs(d, 0), "n"),
+    (lambda d: tl_data.load(np.zeros((36, 1100))), "bitmaps"),
+    (lambda d: tl_data.symbol_units(0, "purple"), "target word"),
+    (lambda d: tl.validate(tl.TLHyper(hidden=0), tl.TLConfig()), "hidden"),
+    (lambda d: tl.validate(tl.TLHyper(replication=0), tl.TLConfig()), "replication"),
+    (lambda d: tl.validate(tl.TLHyper(lr=-0.1), tl.TLConfig()), "lr"),
+    (lambda d: tl.validate(tl.TLHyper(hidden=80), tl.TLConfig(max_hidden=50)), "max_hidden"),
+    (lambda d: tl.TLConfig(epochs=0), "epochs"),
+    (lambda d: tl.TLConfig(noise_mode="gaussian"), "noise_mode"),
+])
+def test_bad_input_names_the_field(data, call, field):
+    with pytest.raises(ValueError, match=field):
+        call(data)
+
+
+CFG = tl.TLConfig(epochs=150, max_hidden=20, max_replication=20, eval_every=50)
+
+
+@pytest.fixture(scope="module")
+def train_fn(data):
+    return jax.jit(tl.make_train(CFG, data))
+
+
+@pytest.fixture(scope="module")
+def three_seeds(data):
+    keys = jax.random.split(jax.random.key(7), 3)
+    hp = tl.TLHyper(hidden=20, replication=20)
+    return keys, hp, jax.jit(jax.vmap(tl.make_train(CFG, data), in_axes=(0, None)))(keys, hp)
+
+
+def test_tl_really_learns_a_small_subset(data):
+    subset = tl_data.TLData(*(a[:54] for a in data))  # 9 layouts x 6 words: 36 train, 18 test
+    cfg = tl.TLConfig(epochs=300, max_hidden=20, max_replication=20, eval_every=50)
+    keys = jax.random.split(jax.random.key(1), 3)
+    _, m = jax.jit(jax.vmap(tl.make_train(cfg, subset), in_axes=(0, None)))(
+        keys, tl.TLHyper(hidden=20))
+    np.testing.assert_array_equal(np.asarray(m["final_train_acc"]), 1.0)
+    rmse = np.asarray(m["train_rmse"])
+    assert np.all(rmse[:, -1] < 0.5 * rmse[:, 0])
+
+
+def test_tl_generalizes_on_the_full_set_after_few_epochs(three_seeds):
+    _, _, (_, m) = three_seeds
+    np.testing.assert_array_equal(np.asarray(m["final_train_acc"]), 1.0)
+    assert np.all(np.asarray(m["final_test_acc"]) > 0.55)  # well above chance (1/3)
+
+
+def test_vmapped_seeds_equal_separate_runs(three_seeds, train_fn):
+    keys, hp, (params, m) = three_seeds
+    for i in range(3):
+        p1, m1 = train_fn(keys[i], hp)
+        np.testing.assert_allclose(np.asarray(p1.w1), np.asarray(params.w1[i]), atol=1e-5)
+        assert float(m1["final_test_acc"]) == pytest.approx(float(m["final_test_acc"][i]))
+
+
+def test_padding_and_masking_equal_the_unpadded_network(data):
+    hp = tl.TLHyper(hidden=8, replication=3)
+    small = tl.TLConfig(epochs=20, max_hidden=8, max_replication=3, eval_every=10)
+    big = tl.TLConfig(epochs=20, max_hidden=30, max_replication=12, eval_every=10)
+    key = jax.random.key(3)
+    ps, ms = jax.jit(tl.make_train(small, data))(key, hp)
+    pb, mb = jax.jit(tl.make_train(big, data))(key, hp)
+    np.testing.assert_allclose(np.asarray(pb.w1[:1245, :8]), np.asarray(ps.w1), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(pb.w2[:8]), np.asarray(ps.w2), atol=1e-5)
+    k_init = jax.random.split(key, 4)[2]  # make_train's split: split, noise, init, epochs
+    untrained = tl.init(k_init, hp, big)
+    np.testing.assert_array_equal(np.asarray(pb.w2[8:]), np.asarray(untrained.w2[8:]))
+    assert float(mb["final_test_acc"]) == pytest.approx(float(ms["final_test_acc"]))
+
+
+def test_localize_uses_the_trained_network(three_seeds, data):
+    _, hp, (params, _) = three_seeds
+    p0 = jax.tree.map(lambda a: a[0], params)
+    preds = [int(tl.localize(p0, jnp.asarray(data.bitmaps[i]), jnp.asarray(data.symbols[i]),
+                             replication=20, hidden=20)) for i in range(0, 216, 9)]
+    truth = data.labels[::9]
+    assert np.mean(np.array(preds) == truth) > 0.8
+
+
+def test_run_grid_shapes_and_replication_matters(tmp_path):
+    cfg = tl.TLConfig(epochs=40, max_hidden=20, max_replication=20, eval_every=20)
+    m = tl_experiments.run_grid(jax.random.key(0), [{"hidden": 20, "replication": 1},
+                                                    {"hidden": 20, "replication": 20}], 2, cfg)
+    assert m["final_test_acc"].shape == (2, 2)
+    assert m["train_acc"].shape == (2, 2, 2)
