@@ -4,12 +4,13 @@ Trained as the paper did: plain online back-propagation (one pattern at a time, 
 every epoch) of the squared error of the sigmoid outputs, learning rate 0.1, 500-600 epochs.
 
 Everything is a pure function and ``vmap``-able over seeds and hyperparameters. The hidden
-size and the replication factor ``n`` change shapes; here they are *traced*: the network is
-built at padded sizes (``TLConfig.max_hidden``, ``TLConfig.max_replication``) and masked --
-masked hidden units output 0 and masked input replicas are 0, so neither takes part in the
-forward pass or gets a gradient, and the result equals that of the unpadded network. One
-compile then serves a whole sweep (``benchmarks/tl_throughput.py`` compares this with one
-compile per shape group).
+size and the replication factor ``n`` can both be *traced*: the network is built at padded
+sizes (``TLConfig.max_hidden``, ``TLConfig.max_replication``) and masked -- masked hidden units
+output 0 and masked input replicas are 0, so neither takes part in the forward pass or gets a
+gradient, and the result equals that of the unpadded network (tested). For sweeps over the
+hidden size, one compile per size turned out faster than padding everything to the largest
+(``benchmarks/tl_throughput.py``), so :func:`tl_experiments.run_grid` groups by hidden size;
+``n`` stays traced (its cost is negligible, see :func:`make_train`).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ class TLConfig:
         noise_mode: ``"fixed"`` -- each pattern's pixels are flipped once, before training
             (a fixed noisy data set); ``"fresh"`` -- a new flip at every presentation of a
             training pattern (test patterns keep one fixed draw).
+        pixel_budget: 0 for dense pixel updates; else the number of pixel rows each online
+            step touches (>= the active pixels of every bitmap; clean bitmaps only, so
+            ``noise`` must be 0). Same result, less memory traffic.
     """
 
     epochs: int = 600
@@ -49,6 +53,7 @@ class TLConfig:
     max_replication: int = 20
     eval_every: int = 10
     noise_mode: str = "fixed"
+    pixel_budget: int = 0
 
     def __post_init__(self) -> None:
         if self.noise_mode not in NOISE_MODES:
@@ -58,6 +63,9 @@ class TLConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+        b = self.pixel_budget
+        if not isinstance(b, (int, np.integer)) or isinstance(b, bool) or not 0 <= b <= N_PIXELS:
+            raise ValueError(f"pixel_budget: must be an integer in 0..{N_PIXELS}, got {b!r}")
 
     @property
     def n_inputs(self) -> int:
@@ -98,6 +106,9 @@ def validate(hp: TLHyper, config: TLConfig) -> None:
                          f"{config.max_replication}")
     if np.any(noise < 0) or np.any(noise > 1):
         raise ValueError(f"noise: must be in [0, 1], got {noise}")
+    if config.pixel_budget and np.any(noise > 0):
+        raise ValueError("noise: must be 0 with pixel_budget > 0 (sparse rows assume clean "
+                         "bitmaps); use pixel_budget=0 for the noise test")
 
 
 @struct.dataclass
@@ -171,11 +182,6 @@ def apply(params: TLParams, x: jax.Array, hid_mask: jax.Array | None = None
     return h, jax.nn.sigmoid(h @ params.w2 + params.b2)
 
 
-def _loss(params: TLParams, x: jax.Array, target: jax.Array, hid_mask: jax.Array):
-    _, y = apply(params, x, hid_mask)
-    return 0.5 * jnp.sum((y - target) ** 2)
-
-
 def build_inputs(bitmaps: jax.Array, symbols: jax.Array, hp: TLHyper, config: TLConfig
                  ) -> jax.Array:
     """Padded inputs ``[N, n_inputs]``: bitmap, then the 15 symbols x max_replication, masked."""
@@ -190,69 +196,122 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
     The key is split once into: the train/test split (2/3 : 1/3), the pixel noise, the
     initial weights and the per-epoch shuffles.
 
+    Training is online back-propagation on the full network, computed compactly: the ``n``
+    replicas of the 15 symbolic units always see the same input, so each gets the same
+    update; the training loop carries that one shared ``[15, H]`` update instead of ``n``
+    copies and rebuilds the full ``(1200 + 15 n)``-input weights at the end (exactly the
+    weights plain backprop on the replicated input gives; tested against it). With
+    ``config.pixel_budget > 0`` the pixel part of each step touches only the ``pixel_budget``
+    rows of the active (1) pixels (exact for clean bitmaps, which have fewer 1s than that).
+
     Returns:
         A pure function; ``metrics`` holds ``train_acc``/``test_acc``/``train_rmse``/
         ``test_rmse`` every ``eval_every`` epochs (``[epochs // eval_every]``) and the final
-        values (``final_train_acc``, ``final_test_acc``).
+        values (``final_train_acc``, ``final_test_acc``, ...).
     """
     data = tl_data.load() if data is None else data
     bitmaps = jnp.asarray(data.bitmaps)
     symbols = jnp.asarray(data.symbols)
     labels = jnp.asarray(data.labels)
+    shape_word = jnp.asarray(data.word < len(tl_data.TARGET_WORDS) // 2)
     targets = jax.nn.one_hot(labels, N_OUT)
     n_all = labels.shape[0]
     n_train = int(round(2 / 3 * n_all))
-    grad = jax.grad(_loss)
+    budget = config.pixel_budget
+    if budget:
+        active = data.bitmaps.sum(1)
+        if active.max() > budget:
+            raise ValueError(f"pixel_budget: {budget} is below the {int(active.max())} active "
+                             "pixels of the densest bitmap")
+        order = np.argsort(-data.bitmaps, axis=1, kind="stable")[:, :budget]
+        pix_idx = jnp.asarray(order, jnp.int32)  # rows of the 1s first, then 0-rows (val 0)
+        pix_val = jnp.asarray(np.take_along_axis(data.bitmaps, order, axis=1))
 
     def train(key: jax.Array, hp: TLHyper) -> tuple[TLParams, dict[str, jax.Array]]:
         k_split, k_noise, k_init, k_epochs = jax.random.split(key, 4)
         perm = jax.random.permutation(k_split, n_all)
         tr, te = perm[:n_train], perm[n_train:]
         flip = jax.random.bernoulli(k_noise, hp.noise, bitmaps.shape)
-        noisy = jnp.where(flip, 1.0 - bitmaps, bitmaps)
-        x_all = build_inputs(noisy, symbols, hp, config)
+        pixels = jnp.where(flip, 1.0 - bitmaps, bitmaps)
+        if budget:  # sparse rows are only valid for the clean bitmaps
+            pixels = bitmaps
         _, hid_mask = masks(hp, config)
-        params = init(k_init, hp, config)
+        p0 = init(k_init, hp, config)
+        rep_mask = (jnp.arange(config.max_replication) < hp.replication).astype(jnp.float32)
+        w_sym0 = p0.w1[N_PIXELS:].reshape(config.max_replication, N_SYMBOLS, -1)
+        s0 = jnp.einsum("r,rsh->sh", rep_mask, w_sym0)  # sum of the used replicas' weights
+        n_rep = jnp.asarray(hp.replication, jnp.float32)
+        # compact state: pixel weights, shared symbol update U, biases, output layer
+        state = (p0.w1[:N_PIXELS], jnp.zeros_like(s0), p0.b1, p0.w2, p0.b2)
 
-        def evaluate(p):
-            _, y = apply(p, x_all, hid_mask)
+        def forward(st, pix, sym):
+            wp, u, b1, w2, b2 = st
+            h = jax.nn.sigmoid(pix @ wp + sym @ (s0 + n_rep * u) + b1) * hid_mask
+            return h, jax.nn.sigmoid(h @ w2 + b2)
+
+        def evaluate(st):
+            _, y = forward(st, pixels, symbols)
             correct = (jnp.argmax(y, -1) == labels).astype(jnp.float32)
             err = jnp.mean((y - targets) ** 2, axis=-1)
             return (correct[tr].mean(), correct[te].mean(), jnp.sqrt(err[tr].mean()),
                     jnp.sqrt(err[te].mean()))
 
-        clean = build_inputs(bitmaps, symbols, hp, config)
-        pixel = jnp.arange(config.n_inputs) < N_PIXELS
-
-        def sgd(p, i_k):
+        def sgd(st, i_k):
             i, k = i_k
-            x = x_all[i]
-            if config.noise_mode == "fresh":
-                flip_now = jax.random.bernoulli(k, hp.noise, x.shape) & pixel
-                x = jnp.where(flip_now, 1.0 - clean[i], clean[i])
-            g = grad(p, x, targets[i], hid_mask)
-            return jax.tree.map(lambda w, d: w - hp.lr * d, p, g), None
+            wp, u, b1, w2, b2 = st
+            sym = symbols[i]
+            if budget:
+                rows, vals = pix_idx[i], pix_val[i]
+                h = jax.nn.sigmoid(vals @ wp[rows] + sym @ (s0 + n_rep * u) + b1) * hid_mask
+            else:
+                pix = pixels[i]
+                if config.noise_mode == "fresh":
+                    pix = jnp.where(jax.random.bernoulli(k, hp.noise, pix.shape),
+                                    1.0 - bitmaps[i], bitmaps[i])
+                h = jax.nn.sigmoid(pix @ wp + sym @ (s0 + n_rep * u) + b1) * hid_mask
+            y = jax.nn.sigmoid(h @ w2 + b2)
+            d_out = (y - targets[i]) * y * (1.0 - y)  # d(0.5 |y - t|^2) / d(pre-activation)
+            d_hid = (w2 @ d_out) * h * (1.0 - h) * hid_mask
+            if budget:
+                wp = wp.at[rows].add(-hp.lr * vals[:, None] * d_hid[None])
+            else:
+                wp = wp - hp.lr * jnp.outer(pix, d_hid)
+            return (wp, u - hp.lr * jnp.outer(sym, d_hid), b1 - hp.lr * d_hid,
+                    w2 - hp.lr * jnp.outer(h, d_out), b2 - hp.lr * d_out), None
 
-        def epoch(p, k):
+        def epoch(st, k):
             k_order, k_flip = jax.random.split(k)
             order = tr[jax.random.permutation(k_order, n_train)]
-            return jax.lax.scan(sgd, p, (order, jax.random.split(k_flip, n_train)))[0]
+            return jax.lax.scan(sgd, st, (order, jax.random.split(k_flip, n_train)))[0]
 
-        def block(p, keys):  # eval_every epochs, then one evaluation
-            p = jax.lax.fori_loop(0, keys.shape[0], lambda j, q: epoch(q, keys[j]), p)
-            return p, evaluate(p)
+        def block(st, keys):  # eval_every epochs, then one evaluation
+            st = jax.lax.fori_loop(0, keys.shape[0], lambda j, q: epoch(q, keys[j]), st)
+            return st, evaluate(st)
 
         keys = jax.random.split(k_epochs, config.epochs)
         n_blocks = config.epochs // config.eval_every
         blocks = keys[: n_blocks * config.eval_every].reshape(n_blocks, config.eval_every)
-        params, curves = jax.lax.scan(block, params, blocks)
-        params = jax.lax.fori_loop(n_blocks * config.eval_every, config.epochs,
-                                   lambda j, q: epoch(q, keys[j]), params)
-        final = evaluate(params)
+        state, curves = jax.lax.scan(block, state, blocks)
+        state = jax.lax.fori_loop(n_blocks * config.eval_every, config.epochs,
+                                  lambda j, q: epoch(q, keys[j]), state)
+        final = evaluate(state)
+        _, y = forward(state, pixels, symbols)
+        correct = jnp.argmax(y, -1) == labels
+        test_shape = shape_word[te]
+        wp, u, b1, w2, b2 = state
+        w_sym = w_sym0 + rep_mask[:, None, None] * u[None]  # every used replica got U
+        params = TLParams(w1=jnp.concatenate([wp, w_sym.reshape(-1, w_sym.shape[-1])]),
+                          b1=b1, w2=w2, b2=b2)
         metrics = {
             "train_acc": curves[0], "test_acc": curves[1], "train_rmse": curves[2],
             "test_rmse": curves[3], "final_train_acc": final[0], "final_test_acc": final[1],
             "final_train_rmse": final[2], "final_test_rmse": final[3],
+            # test accuracy on patterns naming a shape / a colour (the latter never needs
+            # the image)
+            "final_test_acc_shape_words": jnp.sum(correct[te] & test_shape)
+            / jnp.maximum(jnp.sum(test_shape), 1),
+            "final_test_acc_colour_words": jnp.sum(correct[te] & ~test_shape)
+            / jnp.maximum(jnp.sum(~test_shape), 1),
         }
         return params, metrics
 

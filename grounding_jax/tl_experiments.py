@@ -1,12 +1,13 @@
 """TL experiments of the paper: accuracy at H=50/n=20, Fig 6 (hidden size), Fig 7 (replication
 n), and the pixel-noise test. Each writes ``<name>.json`` and ``<name>.png`` under ``out``.
 
-Every grid point x seed is one row of a single ``vmap``ped, ``jit``ted call (sizes padded and
-masked, see :mod:`grounding_jax.tl`), so each experiment compiles once.
+Grid points x seeds run as ``vmap``ped, ``jit``ted calls, one compile per hidden size (see
+:func:`run_grid`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import pathlib
@@ -29,27 +30,52 @@ PAPER = {
 
 def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.TLConfig,
              data: tl_data.TLData | None = None) -> dict[str, np.ndarray]:
-    """Train every grid point with ``seeds`` seeds in one vmapped call.
+    """Train every grid point with ``seeds`` seeds.
+
+    Points are grouped by hidden size -- one compile per size, everything else (seeds, n,
+    learning rate, noise) ``vmap``ped and traced. ``benchmarks/tl_throughput.py`` measured
+    this faster than padding every size to the largest and running one compile.
 
     Args:
         key: one PRNG key; split once into ``len(grid) * seeds`` run keys.
         grid: hyperparameter dicts (fields of :class:`tl.TLHyper`).
         seeds: runs per grid point.
-        config: static config (its padded sizes must cover the grid).
+        config: static config (``max_hidden`` is set per group; ``max_replication`` must
+            cover the grid).
         data: TL data (default: the cached configurations).
 
     Returns:
         Metrics with leading axes ``[len(grid), seeds]``.
     """
-    rows = [dict(g) for g in grid for _ in range(seeds)]
-    hp = tl.TLHyper(**{f: jnp.asarray([r.get(f, getattr(tl.TLHyper(), f)) for r in rows],
-                                      jnp.float32 if f in ("lr", "noise") else jnp.int32)
-                       for f in ("lr", "hidden", "replication", "noise")})
-    tl.validate(hp, config)
+    data = tl_data.load() if data is None else data
+    if config.pixel_budget == 0 and all(g.get("noise", 0.0) == 0 for g in grid):
+        # clean bitmaps: sparse pixel updates give the same result with less memory traffic
+        config = dataclasses.replace(config, pixel_budget=int(data.bitmaps.sum(1).max()))
+    default = tl.TLHyper()
+    rows = [{f: g.get(f, getattr(default, f)) for f in ("lr", "hidden", "replication", "noise")}
+            for g in grid for _ in range(seeds)]
+
+    def hyper(rs: list[dict]) -> tl.TLHyper:
+        return tl.TLHyper(**{f: jnp.asarray([r[f] for r in rs],
+                                            jnp.float32 if f in ("lr", "noise") else jnp.int32)
+                             for f in ("lr", "hidden", "replication", "noise")})
+
+    tl.validate(hyper(rows), dataclasses.replace(
+        config, max_hidden=max(int(r["hidden"]) for r in rows)))
     keys = jax.random.split(key, len(rows))
-    train = jax.jit(jax.vmap(tl.make_train(config, data)))
-    _, metrics = jax.block_until_ready(train(keys, hp))
-    return {k: np.asarray(v).reshape(len(grid), seeds, *v.shape[1:]) for k, v in metrics.items()}
+    out: dict[str, list] = {}
+    order = []
+    for h in sorted({int(r["hidden"]) for r in rows}):
+        idx = [i for i, r in enumerate(rows) if int(r["hidden"]) == h]
+        cfg = dataclasses.replace(config, max_hidden=h)
+        train = jax.jit(jax.vmap(tl.make_train(cfg, data)))
+        _, m = jax.block_until_ready(train(keys[np.asarray(idx)], hyper([rows[i] for i in idx])))
+        for k, v in m.items():
+            out.setdefault(k, []).append(np.asarray(v))
+        order.extend(idx)
+    inv = np.argsort(order)
+    return {k: np.concatenate(v)[inv].reshape(len(grid), seeds, *v[0].shape[1:])
+            for k, v in out.items()}
 
 
 def _write(out: pathlib.Path, name: str, payload: dict, fig) -> None:
@@ -80,18 +106,21 @@ def _summary(m: dict[str, np.ndarray], i: int) -> dict[str, float]:
         "test_acc_std": float(m["final_test_acc"][i].std()),
         "test_acc_per_seed": [float(v) for v in m["final_test_acc"][i]],
         "best_epoch_test_acc_mean": float(best.mean()),
+        "test_acc_shape_words_mean": float(m["final_test_acc_shape_words"][i].mean()),
+        "test_acc_colour_words_mean": float(m["final_test_acc_colour_words"][i].mean()),
         "train_rmse_mean": float(m["final_train_rmse"][i].mean()),
         "test_rmse_mean": float(m["final_test_rmse"][i].mean()),
     }
 
 
 def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 600,
-             noise: float = 0.0, name: str = "accuracy") -> dict:
+             noise: float = 0.0, name: str = "accuracy", noise_mode: str = "fixed") -> dict:
     """H=50, n=20 over ``seeds`` seeds (``noise`` > 0: the pixel-flip test)."""
-    cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20)
+    cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20, noise_mode=noise_mode)
     t = time.perf_counter()
     m = run_grid(key, [{"hidden": 50, "replication": 20, "noise": noise}], seeds, cfg)
-    res = {"hidden": 50, "replication": 20, "noise": noise, "epochs": epochs, "seeds": seeds,
+    res = {"hidden": 50, "replication": 20, "noise": noise, "noise_mode": noise_mode,
+           "epochs": epochs, "seeds": seeds,
            **_summary(m, 0), "wall_s": time.perf_counter() - t,
            "paper": PAPER["noise" if noise else "accuracy"]}
     plt = _plt()
@@ -102,7 +131,8 @@ def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 60
         ax.plot(ep, mu, label=lab)
         ax.fill_between(ep, mu - sd, mu + sd, alpha=0.2)
     ax.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1.02),
-           title=f"TL H=50 n=20{f' noise {noise:.0%}' if noise else ''} ({seeds} seeds)")
+           title=f"TL H=50 n=20{f' noise {noise:.0%} ({noise_mode})' if noise else ''}"
+                 f" ({seeds} seeds)")
     ax.legend()
     _write(out, name, res, fig)
     plt.close(fig)
@@ -117,8 +147,7 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
                          "('hidden', 'replication')")
     base = {"hidden": 50, "replication": 20}
     grid = [{**base, field: int(v)} for v in values]
-    cfg = tl.TLConfig(epochs=epochs, max_hidden=max(g["hidden"] for g in grid),
-                      max_replication=max(g["replication"] for g in grid))
+    cfg = tl.TLConfig(epochs=epochs, max_replication=max(g["replication"] for g in grid))
     t = time.perf_counter()
     m = run_grid(key, grid, seeds, cfg)
     points = [{field: int(v), **_summary(m, i)} for i, v in enumerate(values)]

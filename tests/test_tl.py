@@ -132,3 +132,48 @@ def test_run_grid_shapes_and_replication_matters(tmp_path):
                                                     {"hidden": 20, "replication": 20}], 2, cfg)
     assert m["final_test_acc"].shape == (2, 2)
     assert m["train_acc"].shape == (2, 2, 2)
+
+
+def _reference_train(key, hp, cfg, data):
+    """Plain online backprop (jax.grad) on the explicit replicated input, step by step."""
+    n_all = len(data.labels)
+    n_train = int(round(2 / 3 * n_all))
+    k_split, _, k_init, k_epochs = jax.random.split(key, 4)
+    tr = jax.random.permutation(k_split, n_all)[:n_train]
+    params = tl.init(k_init, hp, cfg)
+    x = tl.build_inputs(jnp.asarray(data.bitmaps), jnp.asarray(data.symbols), hp, cfg)
+    _, hid_mask = tl.masks(hp, cfg)
+    t = jax.nn.one_hot(jnp.asarray(data.labels), 3)
+
+    @jax.jit
+    def step(p, i):
+        g = jax.grad(lambda q: 0.5 * jnp.sum((tl.apply(q, x[i], hid_mask)[1] - t[i]) ** 2))(p)
+        return jax.tree.map(lambda w, d: w - hp.lr * d, p, g)
+
+    for k in jax.random.split(k_epochs, cfg.epochs):
+        k_order, _ = jax.random.split(k)
+        for i in tr[jax.random.permutation(k_order, n_train)]:
+            params = step(params, i)
+    return params
+
+
+@pytest.mark.parametrize("budget", [0, 200])
+def test_compact_training_equals_plain_backprop_on_the_replicated_input(data, budget):
+    subset = tl_data.TLData(*(a[:30] for a in data))
+    hp = tl.TLHyper(hidden=6, replication=4, lr=0.5)
+    cfg = tl.TLConfig(epochs=3, max_hidden=8, max_replication=5, eval_every=3,
+                      pixel_budget=budget)
+    key = jax.random.key(11)
+    fast, _ = jax.jit(tl.make_train(cfg, subset))(key, hp)
+    ref = _reference_train(key, hp, cfg, subset)
+    for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(ref), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=2e-5)
+    assert not np.allclose(np.asarray(fast.w2), np.asarray(tl.init(
+        jax.random.split(key, 4)[2], hp, cfg).w2))  # it did train
+
+
+def test_pixel_budget_checks():
+    with pytest.raises(ValueError, match="pixel_budget"):
+        tl.make_train(tl.TLConfig(pixel_budget=10))
+    with pytest.raises(ValueError, match="noise"):
+        tl.validate(tl.TLHyper(noise=0.1), tl.TLConfig(pixel_budget=300))

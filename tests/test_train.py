@@ -1,4 +1,4 @@
-"""train.py end to end (quick profile, C backend) and its argument checks."""
+"""train.py end to end (quick profile shrunk with --set, C backend) and its argument checks."""
 
 from __future__ import annotations
 
@@ -11,23 +11,38 @@ import pytest
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 import train  # noqa: E402
 
+SMALL = ["--set", "tl_epochs=20", "--set", "tl_seeds=2", "--set", "tl_hidden=5,20",
+         "--set", "tl_replication=1,20"]
 
-def test_train_quick_writes_report_and_metrics(tmp_path):
-    assert train.main(["--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "env_check.json").read_text())
+
+def test_train_writes_report_metrics_and_every_figure(tmp_path):
+    assert train.main(["--out", str(tmp_path), *SMALL]) == 0
+    data = json.loads((tmp_path / "metrics.json").read_text())
     rows = {(r["action"], r["position"]): r for r in data["scripted_episodes"]}
     assert len(rows) == 6
     for pos in ("left", "middle", "right"):
         assert rows["point", pos]["final_point_l1"] < 0.01
         assert rows["push", pos]["target_moved_m"] > 0.02
         assert rows["push", pos]["others_moved_m"] < 1e-3
+    tl = data["tl"]
+    assert tl["accuracy"]["epochs"] == 20 and tl["accuracy"]["seeds"] == 2
+    assert [p["hidden"] for p in tl["fig6"]["points"]] == [5, 20]
+    assert 0.0 <= tl["accuracy"]["test_acc_mean"] <= 1.0
     report = (tmp_path / "REPORT.md").read_text()
-    assert "skipped: not built yet" in report and "| push | left |" in report
-    assert not list(tmp_path.glob("*.tmp"))
+    assert "| test accuracy, H=50, n=20 | ~95% |" in report and "| push | left |" in report
+    for name in ("accuracy", "fig6", "fig7", "noise", "noise_fresh"):
+        assert (tmp_path / "tl" / f"{name}.png").stat().st_size > 1000
+        assert f"tl/{name}.png" in report
+    assert not list(tmp_path.rglob("*.tmp"))
 
 
-@pytest.mark.parametrize("argv, field", [(["--profile", "huge"], "--profile"),
-                                         (["--backend", "ode"], "--backend")])
+@pytest.mark.parametrize("argv, field", [
+    (["--profile", "huge"], "--profile"),
+    (["--backend", "ode"], "--backend"),
+    (["--set", "tl_epoch=5"], "tl_epoch"),
+    (["--set", "tl_seeds=0"], "tl_seeds"),
+    (["--set", "tl_hidden=a,b"], "tl_hidden"),
+])
 def test_train_rejects_bad_arguments(argv, field, capsys):
     with pytest.raises(SystemExit):
         train.parse_args(argv)

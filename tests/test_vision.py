@@ -102,3 +102,14 @@ def test_each_positions_shape_is_recoverable_from_the_bitmap():
             feature = (pos, *stats[k][[cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT, cv2.CC_STAT_AREA]])
             shape = scene.LAYOUTS[i][0][pos]
             assert seen.setdefault(tuple(int(v) for v in feature), shape) == shape
+
+
+def test_no_gl_backend_gives_a_clear_error(monkeypatch):
+    import sys
+
+    monkeypatch.delenv("GROUNDING_JAX_GL", raising=False)
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.setitem(sys.modules, "mujoco.egl", None)  # importing it now fails
+    monkeypatch.setitem(sys.modules, "mujoco.osmesa", None)
+    with pytest.raises(RuntimeError, match=r"tried egl: .*; osmesa: .*libegl1.*libosmesa6"):
+        vision._make_context(32, 32)
