@@ -231,10 +231,11 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
         k_split, k_noise, k_init, k_epochs = jax.random.split(key, 4)
         perm = jax.random.permutation(k_split, n_all)
         tr, te = perm[:n_train], perm[n_train:]
-        flip = jax.random.bernoulli(k_noise, hp.noise, bitmaps.shape)
-        pixels = jnp.where(flip, 1.0 - bitmaps, bitmaps)
-        if budget:  # sparse rows are only valid for the clean bitmaps
+        if budget:  # sparse rows are only valid for the clean bitmaps (validate checks)
             pixels = bitmaps
+        else:
+            flip = jax.random.bernoulli(k_noise, hp.noise, bitmaps.shape)
+            pixels = jnp.where(flip, 1.0 - bitmaps, bitmaps)
         _, hid_mask = masks(hp, config)
         p0 = init(k_init, hp, config)
         rep_mask = (jnp.arange(config.max_replication) < hp.replication).astype(jnp.float32)
