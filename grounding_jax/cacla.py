@@ -1,0 +1,212 @@
+"""CACLA actor-critic (van Hasselt & Wiering 2007) as pure functions over a flax.struct state.
+
+- actor: obs (11) -> ``actor_hidden`` tanh -> 4 tanh (the proposed change of the scaled joints);
+- critic: obs (11) -> ``critic_hidden`` tanh -> 1 linear (the state's value);
+- ``act``: Gaussian exploration around the actor's output, ``sigma`` traced;
+- ``update``: the critic takes a TD step, ``theta_C += lr_C * delta * dV/dtheta`` (paper eq. 3);
+  the actor is moved toward the explored action, ``theta_A += lr_A * (a~ - a) * da/dtheta``
+  (eq. 5), only when the step was an improvement. What counts as one is a traced switch, so
+  one compile serves both of the paper's phases: phase 1 -- the reward rose,
+  ``r_{t+1} > r_t``; phase 2 -- plain CACLA, ``delta > 0``. Optional CACLA+Var (static
+  ``CaclaConfig.var``): the actor update is repeated ``ceil(delta / sqrt(var_delta))`` times
+  (at most ``max_var_repeats``), with ``var_delta`` a running variance of delta.
+
+Hidden sizes are static (``CaclaConfig``); learning rates, sigma, gamma and the phase switch
+are traced (``CaclaHyper``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+OBS_SIZE = 11
+ACTION_SIZE = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class CaclaConfig:
+    """Static configuration.
+
+    Attributes:
+        actor_hidden: actor hidden units (paper: 40).
+        critic_hidden: critic hidden units (paper: 20).
+        var: use CACLA+Var (off by default, as in the paper).
+        max_var_repeats: cap on the CACLA+Var repetitions of one actor update.
+    """
+
+    actor_hidden: int = 40
+    critic_hidden: int = 20
+    var: bool = False
+    max_var_repeats: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("actor_hidden", "critic_hidden", "max_var_repeats"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+
+
+@struct.dataclass
+class CaclaHyper:
+    """Traced hyperparameters.
+
+    Attributes:
+        actor_lr: actor learning rate (paper: 0.001).
+        critic_lr: critic learning rate (paper: 0.01).
+        sigma: standard deviation of the Gaussian exploration (scaled joint units).
+        gamma: discount factor (paper's best: 0).
+        phase1: 1.0 -- update the actor when the reward rose (paper's phase 1);
+            0.0 -- when delta > 0 (plain CACLA, phase 2).
+        var_beta: rate of the running variance of delta (CACLA+Var only).
+    """
+
+    actor_lr: Any = 0.001
+    critic_lr: Any = 0.01
+    sigma: Any = 0.1
+    gamma: Any = 0.0
+    phase1: Any = 0.0
+    var_beta: Any = 0.001
+
+
+def validate(hp: CaclaHyper) -> CaclaHyper:
+    """Raise ValueError naming the field for bad concrete values; returns ``hp``."""
+    rules = {
+        "actor_lr": (lambda v: v > 0, "> 0"),
+        "critic_lr": (lambda v: v > 0, "> 0"),
+        "sigma": (lambda v: v > 0, "> 0"),
+        "gamma": (lambda v: (v >= 0) & (v <= 1), "in [0, 1]"),
+        "phase1": (lambda v: (v == 0) | (v == 1), "0 or 1"),
+        "var_beta": (lambda v: (v > 0) & (v <= 1), "in (0, 1]"),
+    }
+    for name, (ok, what) in rules.items():
+        v = getattr(hp, name)
+        if isinstance(v, jax.core.Tracer):
+            continue
+        arr = np.asarray(v, dtype=float)
+        if not np.all(np.isfinite(arr)) or not np.all(ok(arr)):
+            raise ValueError(f"{name}: must be {what}, got {v!r}")
+    return hp
+
+
+@struct.dataclass
+class MLP:
+    w1: jax.Array
+    b1: jax.Array
+    w2: jax.Array
+    b2: jax.Array
+
+
+@struct.dataclass
+class Agent:
+    """The learner's state: actor and critic parameters, CACLA+Var's running variance."""
+
+    actor: MLP
+    critic: MLP
+    var_delta: jax.Array
+
+
+@struct.dataclass
+class Transition:
+    """One step: ``obs`` -> explored ``action`` -> ``reward`` (r_{t+1}) and ``next_obs``.
+
+    ``prev_reward`` is r_t (the phase-1 rule compares the two); ``done`` cuts the bootstrap.
+    """
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    next_obs: jax.Array
+    done: jax.Array
+    prev_reward: jax.Array
+
+
+def _mlp_init(key: jax.Array, n_in: int, n_hidden: int, n_out: int) -> MLP:
+    k1, k2 = jax.random.split(key)
+    w1 = jax.random.uniform(k1, (n_in, n_hidden), jnp.float32, -1, 1) / np.sqrt(n_in)
+    w2 = jax.random.uniform(k2, (n_hidden, n_out), jnp.float32, -1, 1) / np.sqrt(n_hidden)
+    return MLP(w1=w1, b1=jnp.zeros(n_hidden), w2=w2, b2=jnp.zeros(n_out))
+
+
+def init(key: jax.Array, config: CaclaConfig = CaclaConfig()) -> Agent:
+    """Fresh agent: uniform weights in +-1/sqrt(fan-in), zero biases.
+
+    Args:
+        key: PRNG key.
+        config: static sizes.
+
+    Returns:
+        The agent state.
+    """
+    ka, kc = jax.random.split(key)
+    return Agent(actor=_mlp_init(ka, OBS_SIZE, config.actor_hidden, ACTION_SIZE),
+                 critic=_mlp_init(kc, OBS_SIZE, config.critic_hidden, 1),
+                 var_delta=jnp.ones((), jnp.float32))
+
+
+def actor_apply(actor: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Actor forward pass: (hidden activations [H], action [4] in (-1, 1))."""
+    h = jnp.tanh(obs @ actor.w1 + actor.b1)
+    return h, jnp.tanh(h @ actor.w2 + actor.b2)
+
+
+def critic_apply(critic: MLP, obs: jax.Array) -> jax.Array:
+    """Critic forward pass: the value, a scalar."""
+    h = jnp.tanh(obs @ critic.w1 + critic.b1)
+    return (h @ critic.w2 + critic.b2)[0]
+
+
+def act(agent: Agent, obs: jax.Array, key: jax.Array, hp: CaclaHyper
+        ) -> tuple[jax.Array, jax.Array]:
+    """Explored action ``a~ = a(s) + sigma * N(0, 1)`` and the actor's own ``a(s)``."""
+    _, mean = actor_apply(agent.actor, obs)
+    return mean + hp.sigma * jax.random.normal(key, mean.shape, mean.dtype), mean
+
+
+def _step(tree, grad, lr):
+    return jax.tree.map(lambda p, g: p + lr * g, tree, grad)
+
+
+def update(agent: Agent, tr: Transition, hp: CaclaHyper,
+           config: CaclaConfig = CaclaConfig()) -> tuple[Agent, dict[str, jax.Array]]:
+    """One CACLA update from a transition (paper, Algorithm 1).
+
+    Args:
+        agent: current state.
+        tr: the transition.
+        hp: traced hyperparameters.
+        config: static config (CACLA+Var on/off).
+
+    Returns:
+        (new agent, info with ``delta``, ``actor_updated`` (0/1) and ``value``).
+    """
+    v, dv = jax.value_and_grad(critic_apply)(agent.critic, tr.obs)
+    v_next = critic_apply(agent.critic, tr.next_obs)
+    target = tr.reward + hp.gamma * (1.0 - tr.done.astype(jnp.float32)) * v_next
+    delta = jax.lax.stop_gradient(target - v)
+    critic = _step(agent.critic, dv, hp.critic_lr * delta)
+
+    improved = jnp.where(hp.phase1 > 0.5, tr.reward > tr.prev_reward, delta > 0)
+
+    def pull(actor: MLP) -> MLP:  # one step of the actor toward the explored action
+        _, mean = actor_apply(actor, tr.obs)
+        err = jax.lax.stop_gradient(tr.action - mean)
+        g = jax.grad(lambda a: jnp.dot(actor_apply(a, tr.obs)[1], err))(actor)
+        return _step(actor, g, hp.actor_lr)
+
+    var_delta = agent.var_delta
+    if config.var:
+        var_delta = (1 - hp.var_beta) * var_delta + hp.var_beta * delta**2
+        repeats = jnp.clip(jnp.ceil(delta / jnp.sqrt(var_delta)), 1, config.max_var_repeats)
+        repeats = jnp.where(hp.phase1 > 0.5, 1, repeats).astype(jnp.int32)
+        moved = jax.lax.fori_loop(0, repeats, lambda _, a: pull(a), agent.actor)
+    else:
+        moved = pull(agent.actor)
+    actor = jax.tree.map(lambda new, old: jnp.where(improved, new, old), moved, agent.actor)
+    info = {"delta": delta, "actor_updated": improved.astype(jnp.float32), "value": v}
+    return Agent(actor=actor, critic=critic, var_delta=var_delta), info
