@@ -1,0 +1,174 @@
+"""Action learner (AL) training: CACLA agents acting in the env, the whole loop under lax.scan.
+
+``make_train(config) -> train(key, hp) -> (agent, metrics)``; ``vmap`` ``train`` over keys and
+hyperparameters for a batch of agents (on the C MuJoCo backend the batch's physics goes to
+``mujoco.rollout`` in one call per step). The paper's schedule (150 phase-1 + 300 phase-2
+episodes) and the no-tricks schedule (plain CACLA from the start, ~2000 episodes) are configs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from grounding_jax import cacla, scene
+from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task
+
+#: (phase-1 episodes, phase-2 episodes)
+SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
+
+
+@dataclasses.dataclass(frozen=True)
+class ALConfig:
+    """Static configuration of AL training.
+
+    Attributes:
+        env: the env's static config (backend, substeps, episode length).
+        cacla: network sizes, CACLA+Var.
+        phase1_episodes: episodes with the phase-1 actor rule (reward rose).
+        phase2_episodes: episodes of plain CACLA after them.
+        actions: action indices to draw tasks from (default all three).
+        positions: position indices to draw tasks from (default all three).
+        random_layout: draw the layout per episode (else layout 0 always).
+    """
+
+    env: EnvConfig = EnvConfig()
+    cacla: cacla.CaclaConfig = cacla.CaclaConfig()
+    phase1_episodes: int = 150
+    phase2_episodes: int = 300
+    actions: tuple[int, ...] = (0, 1, 2)
+    positions: tuple[int, ...] = (0, 1, 2)
+    random_layout: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("phase1_episodes", "phase2_episodes"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"{name}: must be an integer >= 0, got {v!r}")
+        if self.phase1_episodes + self.phase2_episodes < 1:
+            raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
+        for name, n in (("actions", 3), ("positions", 3)):
+            v = getattr(self, name)
+            if not v or any(not 0 <= int(i) < n for i in v):
+                raise ValueError(f"{name}: must be a non-empty tuple of indices in 0..{n - 1}, "
+                                 f"got {v!r}")
+
+    @classmethod
+    def from_schedule(cls, schedule: str, **kwargs: Any) -> ALConfig:
+        """A config with one of the named :data:`SCHEDULES` (``"paper"``, ``"no_tricks"``)."""
+        if schedule not in SCHEDULES:
+            raise ValueError(f"schedule: unknown value {schedule!r}; accepted values: "
+                             f"{tuple(SCHEDULES)}")
+        p1, p2 = SCHEDULES[schedule]
+        return cls(phase1_episodes=p1, phase2_episodes=p2, **kwargs)
+
+    @property
+    def episodes(self) -> int:
+        return self.phase1_episodes + self.phase2_episodes
+
+
+@struct.dataclass
+class ALHyper:
+    """Traced hyperparameters: the learner's and the env's."""
+
+    cacla: cacla.CaclaHyper = cacla.CaclaHyper()
+    env: EnvParams = EnvParams()
+
+
+def validate(hp: ALHyper) -> ALHyper:
+    """ValueError naming the field for bad concrete values (before any compile)."""
+    cacla.validate(hp.cacla)
+    hp.env.validate()
+    return hp
+
+
+def make_train(config: ALConfig):
+    """Build ``train(key, hp) -> (agent, metrics)`` for one agent (vmap it for a batch).
+
+    The key is split once into the agent's initial weights and one key per episode (task draw,
+    reset, exploration noise).
+
+    Returns:
+        ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
+        steps taken), ``final_reward``, ``final_point_l1``, ``final_palm_target_dist``,
+        ``touched_target_late`` (touched the target in one of the last 10 steps),
+        ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
+    """
+    env = Env(config.env)
+    actions = jnp.asarray(config.actions, jnp.int32)
+    positions = jnp.asarray(config.positions, jnp.int32)
+    n_layouts = len(scene.LAYOUTS) if config.random_layout else 1
+    length = config.env.episode_length
+
+    def episode(agent: cacla.Agent, xs, hp: ALHyper):
+        key, phase1 = xs
+        k_task, k_reset, k_steps = jax.random.split(key, 3)
+        ka, kp, kl = jax.random.split(k_task, 3)
+        task = Task(action=jax.random.choice(ka, actions),
+                    position=jax.random.choice(kp, positions),
+                    layout=jax.random.randint(kl, (), 0, n_layouts, jnp.int32))
+        chp = hp.cacla.replace(phase1=phase1)
+        state = env.reset(k_reset, task, hp.env)
+
+        def step(carry, k):
+            agent, state = carry
+            a, _ = cacla.act(agent, state.obs, k, chp)
+            nxt = env.step(state, a, hp.env)
+            tr = cacla.Transition(obs=state.obs, action=a, reward=nxt.reward, next_obs=nxt.obs,
+                                  done=nxt.done, prev_reward=state.reward)
+            new, _ = cacla.update(agent, tr, chp, config.cacla)
+            live = ~state.done  # steps after the episode ended change nothing
+            agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
+            out = (jnp.where(live, nxt.reward, 0.0), live, nxt.metrics["touched_target"])
+            return (agent, nxt), out
+
+        (agent, last), (rewards, live, touched) = jax.lax.scan(
+            step, (agent, state), jax.random.split(k_steps, length))
+        steps = jnp.sum(live)
+        late = (jnp.arange(length) >= steps - 10) & live
+        metrics = {
+            "return": jnp.sum(rewards), "final_reward": last.reward,
+            "final_point_l1": last.metrics["point_l1"],
+            "final_palm_target_dist": last.metrics["palm_target_dist"],
+            "touched_target_late": jnp.any((touched > 0) & late).astype(jnp.float32),
+            "wrong_moved": (last.wrong_since >= 0).astype(jnp.float32),
+            "target_moved": last.metrics["target_moved"],
+            "steps": steps, "action": task.action, "position": task.position,
+        }
+        return agent, metrics
+
+    def train(key: jax.Array, hp: ALHyper) -> tuple[cacla.Agent, dict[str, jax.Array]]:
+        k_init, k_eps = jax.random.split(key)
+        agent = cacla.init(k_init, config.cacla)
+        phase1 = (jnp.arange(config.episodes) < config.phase1_episodes).astype(jnp.float32)
+        keys = jax.random.split(k_eps, config.episodes)
+        return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, phase1))
+
+    return train
+
+
+def make_eval(env_config: EnvConfig | None = None, steps: int | None = None):
+    """Build ``evaluate(agent, key, task, env_params) -> trajectory``: the greedy actor
+    (no exploration) for one episode; the trajectory is the env states after each step,
+    stacked, plus ``hidden``, the actor's hidden activations at each step (for the namer).
+    """
+    env = Env(env_config or EnvConfig())
+    n = env.config.episode_length if steps is None else steps
+
+    def evaluate(agent: cacla.Agent, key: jax.Array, task: Task,
+                 env_params: EnvParams = DEFAULT_PARAMS):
+        def step(state, _):
+            hidden, a = cacla.actor_apply(agent.actor, state.obs)
+            nxt = env.step(state, a, env_params)
+            return nxt, (nxt, hidden)
+
+        first = env.reset(key, task, env_params)
+        _, (traj, hidden) = jax.lax.scan(step, first, None, length=n)
+        return first, traj, hidden
+
+    return evaluate

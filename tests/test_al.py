@@ -1,0 +1,85 @@
+"""AL training loop: determinism, vmap equivalence, config checks and that a point task is
+learned (the greedy actor ends far closer to the pointing pose than an untrained one)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from grounding_jax import al, cacla
+from grounding_jax.env import Task
+
+SMALL = al.ALConfig(phase1_episodes=2, phase2_episodes=2)
+
+
+@pytest.fixture(scope="module")
+def small_train():
+    return jax.jit(al.make_train(SMALL))
+
+
+def test_same_seed_gives_identical_metrics_and_episodes_are_recorded(small_train):
+    hp = al.ALHyper()
+    _, m1 = small_train(jax.random.key(3), hp)
+    _, m2 = small_train(jax.random.key(3), hp)
+    for k in m1:
+        np.testing.assert_array_equal(np.asarray(m1[k]), np.asarray(m2[k]))
+    assert m1["return"].shape == (4,)
+    assert np.all(np.asarray(m1["steps"]) >= 1) and np.all(np.asarray(m1["steps"]) <= 75)
+    _, m3 = small_train(jax.random.key(4), hp)
+    assert not np.array_equal(np.asarray(m1["return"]), np.asarray(m3["return"]))
+
+
+def test_vmapped_agents_equal_separate_runs(small_train):
+    keys = jax.random.split(jax.random.key(0), 3)
+    lrs = jnp.array([0.001, 0.01, 0.003])
+    hp = jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x), (3,)), al.ALHyper())
+    hp = hp.replace(cacla=hp.cacla.replace(actor_lr=lrs))
+    agents, ms = jax.jit(jax.vmap(al.make_train(SMALL)))(keys, hp)
+    for i in range(3):
+        hp_i = al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=lrs[i]))
+        agent, m = small_train(keys[i], hp_i)
+        np.testing.assert_allclose(np.asarray(m["return"]), np.asarray(ms["return"][i]),
+                                   rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(np.asarray(agent.actor.w1), np.asarray(agents.actor.w1[i]),
+                                   atol=1e-5)
+
+
+@pytest.mark.parametrize("make, field", [
+    (lambda: al.ALConfig.from_schedule("fast"), "schedule"),
+    (lambda: al.ALConfig(phase1_episodes=-1), "phase1_episodes"),
+    (lambda: al.ALConfig(actions=(0, 5)), "actions"),
+    (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(sigma=0.0))), "sigma"),
+    (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=-1.0))), "actor_lr"),
+])
+def test_bad_config_names_the_field(make, field):
+    with pytest.raises(ValueError, match=field):
+        make()
+
+
+def test_schedules_are_configs():
+    assert al.ALConfig.from_schedule("paper").episodes == 450
+    nt = al.ALConfig.from_schedule("no_tricks")
+    assert (nt.phase1_episodes, nt.episodes) == (0, 2000)
+
+
+def test_point_left_is_learned_far_better_than_an_untrained_actor():
+    # Phase-1 CACLA on one task. Not yet the issue's success-rate goal (L1 < 0.1 for 95%):
+    # this asserts that learning happens, measured on the greedy actor after training.
+    cfg = al.ALConfig(phase1_episodes=300, phase2_episodes=0, actions=(0,), positions=(0,),
+                      random_layout=False)
+    hp = al.ALHyper(cacla=cacla.CaclaHyper(sigma=0.2, actor_lr=0.01))
+    keys = jax.random.split(jax.random.key(0), 4)
+    trained, m = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))(keys, hp)
+    untrained = jax.vmap(lambda k: cacla.init(jax.random.split(k)[0]))(keys)
+    evaluate = jax.jit(jax.vmap(al.make_eval(cfg.env), in_axes=(0, 0, None)))
+    task = Task(jnp.int32(0), jnp.int32(0), jnp.int32(0))
+    before = np.asarray(evaluate(untrained, keys, task)[1].metrics["point_l1"][:, -1])
+    after = np.asarray(evaluate(trained, keys, task)[1].metrics["point_l1"][:, -1])
+    assert before.mean() > 1.5  # the untrained arm wanders off
+    assert after.mean() < 0.3 * before.mean()
+    assert np.median(after) < 0.5
+    # the training episodes' returns improved too
+    ret = np.asarray(m["return"])
+    assert ret[:, -50:].mean() > ret[:, :50].mean() + 20
