@@ -149,7 +149,8 @@ def report(args, env_rows: list[dict], tl: dict, wall: dict) -> str:
         "| module | status |", "|---|---|",
         "| scene + env (issue 3) | done: scripted episodes below |",
         "| TL target localizer, Figs 6, 7, noise (issue 4) | done: below |",
-        "| AL action learner, Figs 8-11, 13, 14 (issue 5) | skipped: not built yet |",
+        "| AL action learner, Figs 8-11, 13, 14 (issue 5) | skipped: CACLA and its training "
+        "loop exist (tested), not yet trained to the paper's tasks; no figures |",
         "| AN action namer + SOM, Figs 12, 15 (issue 6) | skipped: not built yet |",
         "", "## Target localizer", "",
         "| result | paper | ours |", "|---|---|---|",
