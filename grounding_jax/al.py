@@ -13,10 +13,10 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from grounding_jax import cacla, scene
+from grounding_jax._checks import require_int
 from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task
 
 #: (phase-1 episodes, phase-2 episodes)
@@ -47,9 +47,7 @@ class ALConfig:
 
     def __post_init__(self) -> None:
         for name in ("phase1_episodes", "phase2_episodes"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
-                raise ValueError(f"{name}: must be an integer >= 0, got {v!r}")
+            require_int(name, getattr(self, name), 0)
         if self.phase1_episodes + self.phase2_episodes < 1:
             raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
         for name, n in (("actions", 3), ("positions", 3)):

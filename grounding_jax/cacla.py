@@ -25,6 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from grounding_jax._checks import require_int
+
 OBS_SIZE = 11
 ACTION_SIZE = 4
 
@@ -47,9 +49,7 @@ class CaclaConfig:
 
     def __post_init__(self) -> None:
         for name in ("actor_hidden", "critic_hidden", "max_var_repeats"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+            require_int(name, getattr(self, name), 1)
 
 
 @struct.dataclass

@@ -32,6 +32,7 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import physics, scene
+from grounding_jax._checks import require_int
 
 OBS_SIZE = 11
 ACTION_SIZE = 4
@@ -54,9 +55,7 @@ class EnvConfig:
     def __post_init__(self) -> None:
         physics.check_backend(self.backend)
         for name in ("substeps", "episode_length"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+            require_int(name, getattr(self, name), 1)
 
 
 @struct.dataclass

@@ -24,6 +24,7 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import tl_data
+from grounding_jax._checks import require_int
 
 N_OUT = 3
 N_SYMBOLS = 15
@@ -60,9 +61,7 @@ class TLConfig:
             raise ValueError(f"noise_mode: unknown value {self.noise_mode!r}; accepted values: "
                              f"{NOISE_MODES}")
         for name in ("epochs", "max_hidden", "max_replication", "eval_every"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+            require_int(name, getattr(self, name), 1)
         b = self.pixel_budget
         if not isinstance(b, (int, np.integer)) or isinstance(b, bool) or not 0 <= b <= N_PIXELS:
             raise ValueError(f"pixel_budget: must be an integer in 0..{N_PIXELS}, got {b!r}")

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from grounding_jax import scene
+from grounding_jax._checks import require_int
 
 BITMAPS_NPZ = scene.ASSETS / "tl_bitmaps.npz"
 TARGET_WORDS = (*scene.SHAPES, *scene.COLOURS)  # box, cylinder, sphere, red, green, blue
@@ -107,8 +108,7 @@ def load(bitmaps: np.ndarray | None = None) -> TLData:
 
 def inputs(data: TLData, n: int) -> np.ndarray:
     """Network inputs ``[216, 1200 + 15 n]``: bitmap, then the 15 symbolic units n times."""
-    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
-        raise ValueError(f"n (replication): must be an integer >= 1, got {n!r}")
+    require_int("n (replication)", n, 1)
     return np.concatenate([data.bitmaps, np.tile(data.symbols, (1, n))], axis=1)
 
 
