@@ -250,11 +250,13 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
             return h, jax.nn.sigmoid(h @ w2 + b2)
 
         def evaluate(st):
+            """(train acc, test acc, train RMSE, test RMSE), and which patterns are right."""
             _, y = forward(st, pixels, symbols)
-            correct = (jnp.argmax(y, -1) == labels).astype(jnp.float32)
+            correct = jnp.argmax(y, -1) == labels
             err = jnp.mean((y - targets) ** 2, axis=-1)
-            return (correct[tr].mean(), correct[te].mean(), jnp.sqrt(err[tr].mean()),
-                    jnp.sqrt(err[te].mean()))
+            acc = correct.astype(jnp.float32)
+            return (acc[tr].mean(), acc[te].mean(), jnp.sqrt(err[tr].mean()),
+                    jnp.sqrt(err[te].mean())), correct
 
         def sgd(st, i_k):
             i, k = i_k
@@ -286,7 +288,7 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
 
         def block(st, keys):  # eval_every epochs, then one evaluation
             st = jax.lax.fori_loop(0, keys.shape[0], lambda j, q: epoch(q, keys[j]), st)
-            return st, evaluate(st)
+            return st, evaluate(st)[0]
 
         keys = jax.random.split(k_epochs, config.epochs)
         n_blocks = config.epochs // config.eval_every
@@ -294,9 +296,7 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
         state, curves = jax.lax.scan(block, state, blocks)
         state = jax.lax.fori_loop(n_blocks * config.eval_every, config.epochs,
                                   lambda j, q: epoch(q, keys[j]), state)
-        final = evaluate(state)
-        _, y = forward(state, pixels, symbols)
-        correct = jnp.argmax(y, -1) == labels
+        final, correct = evaluate(state)
         test_shape = shape_word[te]
         wp, u, b1, w2, b2 = state
         w_sym = w_sym0 + rep_mask[:, None, None] * u[None]  # every used replica got U
