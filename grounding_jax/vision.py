@@ -14,6 +14,7 @@ The pipeline (paper, section 2.1 and Fig 4), each step a small pure function:
 
 from __future__ import annotations
 
+import copy
 import functools
 import os
 
@@ -63,7 +64,7 @@ class EyeRenderer:
 
     def __init__(self, width: int = WIDTH, height: int = HEIGHT) -> None:
         self.width, self.height = width, height
-        self.model = scene.build_spec().compile()  # private copy: colours are set per layout
+        self.model = copy.copy(scene.model())  # private copy: colours are set per layout
         self.data = mujoco.MjData(self.model)
         self._ctx = _make_context(width, height)
         self._mjr = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_150)
