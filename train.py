@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 import time
@@ -65,12 +64,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.backend not in BACKENDS:
         ap.error(f"--backend: unknown value {args.backend!r}; accepted values: {BACKENDS}")
     return args
-
-
-def _atomic_write(path: pathlib.Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)  # never leave a half-written file behind
 
 
 def env_check(key, backend: str) -> list[dict]:
@@ -210,6 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     import jax
 
     import grounding_jax as gj
+    from grounding_jax._io import atomic_write_text
 
     out = pathlib.Path(args.out or pathlib.Path("results") / args.profile)
     out.mkdir(parents=True, exist_ok=True)
@@ -224,8 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
               "wall_s": wall, "version": gj.__version__}
-    _atomic_write(out / "metrics.json", json.dumps(result, indent=2) + "\n")
-    _atomic_write(out / "REPORT.md", report(args, env_rows, tl, wall))
+    atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
+    atomic_write_text(out / "REPORT.md", report(args, env_rows, tl, wall))
     print(f"wrote {out / 'REPORT.md'} and {out / 'metrics.json'} "
           f"({sum(wall.values()):.1f} s)")
     return 0

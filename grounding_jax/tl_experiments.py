@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import tl, tl_data
+from grounding_jax._io import atomic_write_text
 
 PAPER = {
     "accuracy": {"test_acc": 0.95, "train_acc": 1.0},
@@ -80,9 +81,7 @@ def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.
 
 def _write(out: pathlib.Path, name: str, payload: dict, fig) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".{name}.json.tmp"
-    tmp.write_text(json.dumps(payload, indent=2) + "\n")
-    os.replace(tmp, out / f"{name}.json")
+    atomic_write_text(out / f"{name}.json", json.dumps(payload, indent=2) + "\n")
     tmp_png = out / f".{name}.tmp.png"
     fig.savefig(tmp_png, dpi=110, bbox_inches="tight")
     os.replace(tmp_png, out / f"{name}.png")
