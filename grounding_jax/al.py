@@ -85,17 +85,12 @@ def validate(hp: ALHyper) -> ALHyper:
     return hp
 
 
-def make_train(config: ALConfig):
-    """Build ``train(key, hp) -> (agent, metrics)`` for one agent (vmap it for a batch).
+def make_episodes(config: ALConfig):
+    """Build ``run(agent, keys, phase1, hp) -> (agent, metrics)``: one episode per key, in
+    order, under ``lax.scan`` (``phase1`` [episodes]: 1.0 where the phase-1 rule applies).
 
-    The key is split once into the agent's initial weights and one key per episode (task draw,
-    reset, exploration noise).
-
-    Returns:
-        ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
-        steps taken), ``final_reward``, ``final_point_l1``, ``final_palm_target_dist``,
-        ``touched_target_late`` (touched the target in one of the last 10 steps),
-        ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
+    Training in chunks of episodes (a host loop with progress and checkpoints) calls this on
+    consecutive slices of the keys; the result equals one :func:`make_train` call.
     """
     env = Env(config.env)
     actions = jnp.asarray(config.actions, jnp.int32)
@@ -140,14 +135,64 @@ def make_train(config: ALConfig):
         }
         return agent, metrics
 
-    def train(key: jax.Array, hp: ALHyper) -> tuple[cacla.Agent, dict[str, jax.Array]]:
-        k_init, k_eps = jax.random.split(key)
-        agent = cacla.init(k_init, config.cacla)
-        phase1 = (jnp.arange(config.episodes) < config.phase1_episodes).astype(jnp.float32)
-        keys = jax.random.split(k_eps, config.episodes)
+    def run(agent: cacla.Agent, keys: jax.Array, phase1: jax.Array, hp: ALHyper):
         return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, phase1))
 
+    return run
+
+
+def schedule(key: jax.Array, config: ALConfig) -> tuple[cacla.Agent, jax.Array, jax.Array]:
+    """The key split once: (initial agent, one key per episode, phase-1 flags per episode)."""
+    k_init, k_eps = jax.random.split(key)
+    phase1 = (jnp.arange(config.episodes) < config.phase1_episodes).astype(jnp.float32)
+    return cacla.init(k_init, config.cacla), jax.random.split(k_eps, config.episodes), phase1
+
+
+def make_train(config: ALConfig):
+    """Build ``train(key, hp) -> (agent, metrics)`` for one agent (vmap it for a batch).
+
+    The key is split once into the agent's initial weights and one key per episode (task draw,
+    reset, exploration noise).
+
+    Returns:
+        ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
+        steps taken), ``final_reward``, ``final_point_l1``, ``final_palm_target_dist``,
+        ``touched_target_late`` (touched the target in one of the last 10 steps),
+        ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
+    """
+    run = make_episodes(config)
+
+    def train(key: jax.Array, hp: ALHyper) -> tuple[cacla.Agent, dict[str, jax.Array]]:
+        agent, keys, phase1 = schedule(key, config)
+        return run(agent, keys, phase1, hp)
+
     return train
+
+
+def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
+                    on_stop=None):
+    """Train a batch of agents (``keys`` [agents], ``hp`` batched or shared) in a host loop
+    over chunks of episodes ending at each of ``stops`` (the last must be
+    ``config.episodes``); ``on_stop(episode, agents)`` is called after each chunk.
+
+    Returns:
+        (agents, metrics [agents, episodes]) -- equal to ``vmap(make_train(config))``.
+    """
+    if not stops or sorted(stops) != list(stops) or stops[-1] != config.episodes or stops[0] < 1:
+        raise ValueError(f"stops: must be increasing, >= 1 and end at {config.episodes}, "
+                         f"got {stops!r}")
+    hp_axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp)
+    run = jax.jit(jax.vmap(make_episodes(config), in_axes=(0, 0, None, hp_axes)))
+    agents, ep_keys, phase1 = jax.vmap(lambda k: schedule(k, config))(keys)
+    phase1 = phase1[0]
+    parts, start = [], 0
+    for stop in stops:
+        agents, m = run(agents, ep_keys[:, start:stop], phase1[start:stop], hp)
+        parts.append(m)
+        start = stop
+        if on_stop is not None:
+            on_stop(stop, agents)
+    return agents, jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=1), *parts)
 
 
 def make_eval(env_config: EnvConfig | None = None, steps: int | None = None):

@@ -83,3 +83,15 @@ def test_point_left_is_learned_far_better_than_an_untrained_actor():
     # the training episodes' returns improved too
     ret = np.asarray(m["return"])
     assert ret[:, -50:].mean() > ret[:, :50].mean() + 20
+
+
+def test_training_in_chunks_equals_one_run(small_train):
+    keys = jax.random.split(jax.random.key(5), 2)
+    hp = al.ALHyper()
+    agents, m = al.train_in_chunks(SMALL, keys, hp, [1, 3, 4])
+    for i in range(2):
+        agent, mi = small_train(keys[i], hp)
+        np.testing.assert_array_equal(np.asarray(m["return"][i]), np.asarray(mi["return"]))
+        np.testing.assert_array_equal(np.asarray(agents.actor.w1[i]), np.asarray(agent.actor.w1))
+    with pytest.raises(ValueError, match="stops"):
+        al.train_in_chunks(SMALL, keys, hp, [2, 3])

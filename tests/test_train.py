@@ -12,7 +12,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 import train  # noqa: E402
 
 SMALL = ["--set", "tl_epochs=20", "--set", "tl_seeds=2", "--set", "tl_hidden=5,20",
-         "--set", "tl_replication=1,20"]
+         "--set", "tl_replication=1,20", "--set", "al_seeds=2", "--set", "al_phase1=10",
+         "--set", "al_phase2=10", "--set", "al_no_tricks=40"]
 
 
 def test_train_writes_report_metrics_and_every_figure(tmp_path):
@@ -33,6 +34,15 @@ def test_train_writes_report_metrics_and_every_figure(tmp_path):
     for name in ("accuracy", "fig6", "fig7", "noise", "noise_fresh"):
         assert (tmp_path / "tl" / f"{name}.png").stat().st_size > 1000
         assert f"tl/{name}.png" in report
+    al = data["al"]
+    assert al["seeds"] == 2 and set(al["success"]) == {"20"}
+    for rates in (al["final"]["home"]["by_action"], al["final"]["random_starts"]["by_action"]):
+        assert set(rates) == {"point", "touch", "push"}
+        assert all(0.0 <= v <= 1.0 for v in rates.values())
+    assert "| point, from home |" in report
+    for name in ("fig10", "fig11", "fig13", "fig14", "fig14_paper_schedule"):
+        assert (tmp_path / "al" / f"{name}.png").stat().st_size > 1000
+        assert f"al/{name}.png" in report
     assert not list(tmp_path.rglob("*.tmp"))
 
 
@@ -42,6 +52,8 @@ def test_train_writes_report_metrics_and_every_figure(tmp_path):
     (["--set", "tl_epoch=5"], "tl_epoch"),
     (["--set", "tl_seeds=0"], "tl_seeds"),
     (["--set", "tl_hidden=a,b"], "tl_hidden"),
+    (["--set", "al_phase1=0", "--set", "al_phase2=0"], "al_phase"),
+    (["--set", "al_seeds=0"], "al_seeds"),
 ])
 def test_train_rejects_bad_arguments(argv, field, capsys):
     with pytest.raises(SystemExit):

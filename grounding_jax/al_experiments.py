@@ -1,0 +1,388 @@
+"""AL evaluation and the paper's AL figures (10, 11, 13, 14), from trained agents.
+
+Success (greedy actor, one episode per task and layout):
+
+- point: final L1 distance to the stored pointing pose < ``POINT_L1`` (scaled joint units);
+- touch: the arm touches the target in one of the last 10 steps and no wrong object moved;
+- push: the target moved >= ``PUSH_MOVED`` metres and no wrong object moved.
+
+"Final" is the last step of the episode: step 75, or the step at which it ended after a wrong
+object moved.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax import al, cacla, scene
+from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
+
+POINT_L1 = 0.1
+PUSH_MOVED = 0.02
+TOUCH_LAST = 10
+
+#: The 6 layouts with colour order 0: every shape at every position once.
+SHAPE_LAYOUTS = tuple(i * len(scene.COLOUR_ORDERS) for i in range(len(scene.SHAPE_ORDERS)))
+
+
+def all_tasks(layouts: tuple[int, ...] = SHAPE_LAYOUTS) -> Task:
+    """Every (action, position, layout) combination as a batched :class:`Task`."""
+    a, p, lay = np.meshgrid(np.arange(3), np.arange(3), np.asarray(layouts), indexing="ij")
+    return Task(*(jnp.asarray(x.ravel(), jnp.int32) for x in (a, p, lay)))
+
+
+def episode_success(traj, task: Task) -> dict[str, jax.Array]:
+    """Success of one greedy episode from its stacked states (see module doc).
+
+    Args:
+        traj: env states after each step, stacked on axis 0 (from ``al.make_eval``).
+        task: the episode's task.
+
+    Returns:
+        ``success`` (0/1), and the quantities it is judged on: ``final_point_l1``,
+        ``touched_late``, ``target_moved``, ``wrong_moved``, ``final_reward``.
+    """
+    n = traj.reward.shape[0]
+    done = traj.done
+    last = jnp.where(jnp.any(done), jnp.argmax(done), n - 1)
+    at = lambda x: x[last]  # noqa: E731
+    steps = jnp.arange(n)
+    late = (steps > last - TOUCH_LAST) & (steps <= last)
+    touched = jnp.any((traj.metrics["touched_target"] > 0) & late)
+    wrong = at(traj.wrong_since) >= 0
+    moved = at(traj.metrics["target_moved"])
+    l1 = at(traj.metrics["point_l1"])
+    ok = jnp.stack([l1 < POINT_L1, touched & ~wrong, (moved >= PUSH_MOVED) & ~wrong])
+    return {"success": ok[task.action].astype(jnp.float32), "final_point_l1": l1,
+            "touched_late": touched.astype(jnp.float32), "target_moved": moved,
+            "wrong_moved": wrong.astype(jnp.float32), "final_reward": at(traj.reward)}
+
+
+def make_success(env_config: EnvConfig = EnvConfig(), layouts: tuple[int, ...] = SHAPE_LAYOUTS,
+                 starts: int = 1):
+    """Build ``success(agents, key, env_params) -> dict`` for a batch of agents.
+
+    Each agent runs every task (3 actions x 3 positions x ``layouts``) from ``starts`` start
+    poses (drawn with ``env_params.start_noise``; 0 = the home pose).
+
+    Returns:
+        A function whose dict holds arrays ``[agents, starts, tasks]`` (see
+        :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``.
+    """
+    evaluate = al.make_eval(env_config)
+    tasks = all_tasks(layouts)
+
+    def one(agent, key, task, params):
+        _, traj, _ = evaluate(agent, key, task, params)
+        return episode_success(traj, task)
+
+    over_tasks = jax.vmap(one, in_axes=(None, None, 0, None))
+    over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
+    over_agents = jax.vmap(over_starts, in_axes=(0, None, None, None))
+
+    @jax.jit
+    def success(agents: cacla.Agent, key: jax.Array, params: EnvParams = DEFAULT_PARAMS):
+        keys = jax.random.split(key, starts)
+        out = over_agents(agents, keys, tasks, params)
+        out["action"], out["position"] = tasks.action, tasks.position
+        return out
+
+    return success
+
+
+def success_table(out: dict[str, jax.Array]) -> dict[str, object]:
+    """Success rates from :func:`make_success`'s output.
+
+    Returns:
+        ``by_action`` {name: rate}, ``by_task`` {"point left": rate, ...} and ``per_agent``
+        [agents] rates over all tasks (all rates in [0, 1]).
+    """
+    s = np.asarray(out["success"])  # [agents, starts, tasks]
+    act, pos = np.asarray(out["action"]), np.asarray(out["position"])
+    by_action = {a: float(s[..., act == i].mean()) for i, a in enumerate(scene.ACTIONS)}
+    by_task = {f"{a} {p}": float(s[..., (act == i) & (pos == j)].mean())
+               for i, a in enumerate(scene.ACTIONS) for j, p in enumerate(scene.POSITIONS)}
+    return {"by_action": by_action, "by_task": by_task,
+            "per_agent": s.reshape(s.shape[0], -1).mean(axis=1).tolist()}
+
+
+# ------------------------------------------------------------------------------ experiments
+def _save(out, name: str, fig, data: dict) -> None:
+    import json
+    import pathlib
+
+    from grounding_jax._io import atomic_write_text
+
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / f"{name}.png", dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    atomic_write_text(out / f"{name}.json", json.dumps(data, indent=1) + "\n")
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _take(tree, i: int):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def make_switch_eval(env_config: EnvConfig = EnvConfig(), steps: int = 100,
+                     switch_at: int = 20):
+    """Build ``run(agent, key, first_task, second_task, env_params) -> traj``: the greedy
+    actor for ``steps`` steps, the task replaced by ``second_task`` after ``switch_at`` steps
+    (Fig 13). The episode length is raised to ``steps`` so it does not end on its own."""
+    import dataclasses
+
+    from grounding_jax.env import Env
+
+    env = Env(dataclasses.replace(env_config, episode_length=steps))
+
+    def run(agent, key, first: Task, second: Task, params: EnvParams = DEFAULT_PARAMS):
+        def step(state, t):
+            state = jax.lax.cond(t == switch_at, lambda s: env.set_task(s, second),
+                                 lambda s: s, state)
+            _, a = cacla.actor_apply(agent.actor, state.obs)
+            nxt = env.step(state, a, params)
+            return nxt, nxt
+
+        _, traj = jax.lax.scan(step, env.reset(key, first, params), jnp.arange(steps))
+        return traj
+
+    return run
+
+
+def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> dict:
+    """Fig 10: reward per step of the greedy actor for the 9 action-position pairs (layout 0);
+    agent 0 drawn, all agents' rewards in the JSON."""
+    plt = _plt()
+    evaluate = al.make_eval(env_config)
+    tasks = all_tasks((0,))
+    run = jax.jit(jax.vmap(jax.vmap(lambda ag, t: evaluate(ag, key, t)[1].reward,
+                                    in_axes=(None, 0)), in_axes=(0, None)))
+    r = np.asarray(run(agents, tasks))  # [agents, 9, steps]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.2), sharey=False)
+    for i, ax in enumerate(axes):
+        for j, p in enumerate(scene.POSITIONS):
+            ax.plot(np.arange(1, r.shape[2] + 1), r[0, 3 * i + j], label=p)
+        ax.set_title(scene.ACTIONS[i])
+        ax.set_xlabel("step")
+    axes[0].set_ylabel("reward")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Fig 10: reward per step of the trained actions (agent 0, layout 0)")
+    fig.tight_layout()
+    data = {"tasks": [f"{a} {p}" for a in scene.ACTIONS for p in scene.POSITIONS],
+            "reward_agent0": r[0].tolist(), "reward_mean": r.mean(0).tolist(),
+            "final_reward_per_agent": r[:, :, -1].tolist()}
+    _save(out, "fig10", fig, data)
+    return data
+
+
+def fig11(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
+          starts: int = 5, start_noise: float = 0.5) -> dict:
+    """Fig 11: "point left" from ``starts`` random start poses: joints and reward per step."""
+    from grounding_jax.env import make_task
+
+    plt = _plt()
+    evaluate = al.make_eval(env_config)
+    params = EnvParams(start_noise=start_noise)
+    task = make_task("point", "left")
+    first, traj, _ = jax.jit(jax.vmap(lambda k: evaluate(agent, k, task, params)))(
+        jax.random.split(key, starts))
+    j0 = np.asarray(first.obs[:, :4])[:, None]
+    joints = np.concatenate([j0, np.asarray(traj.obs[..., :4])], axis=1)  # [starts, T+1, 4]
+    reward = np.concatenate([np.asarray(first.reward)[:, None], np.asarray(traj.reward)], 1)
+    target = np.asarray(scale_pointing()[0])
+    fig, axes = plt.subplots(1, 5, figsize=(16, 3.2))
+    names = ("shoulder pitch", "shoulder roll", "shoulder yaw", "elbow")
+    for k in range(4):
+        axes[k].plot(joints[..., k].T, lw=1)
+        axes[k].axhline(target[k], color="k", ls=":", lw=0.8)
+        axes[k].set_title(names[k])
+        axes[k].set_xlabel("step")
+    axes[0].set_ylabel("scaled joint")
+    axes[4].plot(reward.T, lw=1)
+    axes[4].set_title("reward (-L1)")
+    axes[4].set_xlabel("step")
+    fig.suptitle(f'Fig 11: "point left" from {starts} random starts (dotted: stored pose)')
+    fig.tight_layout()
+    l1 = np.asarray(traj.metrics["point_l1"][:, -1])
+    data = {"start_noise": start_noise, "joints": joints.tolist(), "reward": reward.tolist(),
+            "final_point_l1": l1.tolist(), "success": (l1 < POINT_L1).tolist()}
+    _save(out, "fig11", fig, data)
+    return data
+
+
+def scale_pointing() -> jax.Array:
+    """The stored pointing poses in scaled joint units, ``[3 positions, 4]``."""
+    from grounding_jax.env import scale_joints
+
+    return scale_joints(jnp.asarray(scene.pointing_configs(), jnp.float32))
+
+
+#: Fig 13's goal switches (first task -> second task at step 20).
+SWITCHES = (("point", "left", "point", "right"), ("point", "middle", "push", "middle"),
+            ("push", "right", "touch", "left"), ("touch", "middle", "point", "left"))
+
+
+def fig13(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
+          steps: int = 100, switch_at: int = 20) -> dict:
+    """Fig 13: 100-step runs where the action or the target changes at step 20."""
+    from grounding_jax.env import make_task
+
+    plt = _plt()
+    run = jax.jit(make_switch_eval(env_config, steps, switch_at))
+    fig, axes = plt.subplots(1, len(SWITCHES), figsize=(4 * len(SWITCHES), 3.2))
+    rows = []
+    for ax, (a1, p1, a2, p2) in zip(axes, SWITCHES, strict=True):
+        traj = run(agent, key, make_task(a1, p1), make_task(a2, p2))
+        r = np.asarray(traj.reward)
+        ax.plot(np.arange(1, steps + 1), r)
+        ax.axvline(switch_at, color="grey", ls=":")
+        ax.set_title(f"{a1} {p1} -> {a2} {p2}", fontsize=9)
+        ax.set_xlabel("step")
+        ok = episode_success(jax.tree.map(jnp.asarray, traj), make_task(a2, p2))
+        rows.append({"first": f"{a1} {p1}", "second": f"{a2} {p2}",
+                     "reward_before_switch": float(r[switch_at - 1]),
+                     "reward_after_switch": float(r[switch_at]),
+                     "final_reward": float(r[-1]), "second_task_success": float(ok["success"]),
+                     "reward": r.tolist()})
+    axes[0].set_ylabel("reward")
+    fig.suptitle(f"Fig 13: goal switched at step {switch_at} (agent 0)")
+    fig.tight_layout()
+    data = {"switch_at": switch_at, "runs": rows}
+    _save(out, "fig13", fig, data)
+    return data
+
+
+def fig14(metrics: dict[str, np.ndarray], out, window: int = 50,
+          phase1_episodes: int = 0, name: str = "fig14") -> dict:
+    """Fig 14: per-episode return by action and by target position over a training run
+    (moving average over ``window`` episodes of each kind, mean over agents)."""
+    plt = _plt()
+    ret = np.asarray(metrics["return"])  # [agents, episodes]
+    window = min(window, max(5, ret.shape[1] // 15))  # short runs: a shorter average
+    groups = {"action": (np.asarray(metrics["action"]), scene.ACTIONS),
+              "position": (np.asarray(metrics["position"]), scene.POSITIONS)}
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4))
+    data = {"window": window, "episodes": int(ret.shape[1])}
+    for ax, (field, (kind, names)) in zip(axes, groups.items(), strict=True):
+        curves = {}
+        for i, label in enumerate(names):
+            per_agent = []
+            for a in range(ret.shape[0]):
+                sel = np.flatnonzero(kind[a] == i)
+                r = ret[a, sel]
+                if len(r) < window:
+                    continue
+                ma = np.convolve(r, np.ones(window) / window, mode="valid")
+                per_agent.append(np.interp(np.arange(ret.shape[1]), sel[window - 1:], ma,
+                                           left=np.nan))
+            if per_agent:
+                curve = np.nanmean(np.stack(per_agent), axis=0)
+                ax.plot(curve, label=label)
+                curves[label] = [None if np.isnan(v) else float(v) for v in curve]
+        if phase1_episodes:
+            ax.axvline(phase1_episodes, color="grey", ls=":")
+        ax.set_title(f"return by {field}")
+        ax.set_xlabel("episode")
+        ax.legend(fontsize=8)
+        data[f"by_{field}"] = curves
+    axes[0].set_ylabel(f"return (moving average of {window})")
+    what = "phase 1 then plain CACLA" if phase1_episodes else "no tricks (plain CACLA)"
+    fig.suptitle(f"Fig 14: training run, {what}, {ret.shape[0]} agents")
+    fig.tight_layout()
+    _save(out, name, fig, data)
+    return data
+
+
+#: Hyperparameters tuned here (the paper's defaults, ``cacla.CaclaHyper()``, barely learn in
+#: our env; see README "Action learner"): grid over sigma, both learning rates and gamma.
+TUNED = {"actor_lr": 0.01, "critic_lr": 0.1, "sigma": 0.3, "gamma": 0.0}
+RANDOM_START_NOISE = 0.5
+
+
+def _summary(table: dict, out: dict) -> dict:
+    l1 = np.asarray(out["final_point_l1"])[..., np.asarray(out["action"]) == 0]
+    return {**table, "point_l1_median": float(np.median(l1)),
+            "point_l1_p90": float(np.quantile(l1, 0.9))}
+
+
+def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_episodes: int,
+        env_config: EnvConfig = EnvConfig(), hyper: dict | None = None,
+        checkpoints: tuple[int, ...] = (450,), random_starts: int = 5) -> dict:
+    """The AL results: success rates (home and random starts) at each of ``checkpoints``
+    episodes and at the end, Figs 10, 11, 13 (agent 0 of the final batch) and Fig 14 (a
+    no-tricks run of ``no_tricks_episodes``). Writes PNG + JSON under ``out``.
+
+    Args:
+        key: one PRNG key, split once here.
+        out: output folder.
+        seeds: agents trained (vmapped).
+        phase1, phase2: the schedule's episodes.
+        no_tricks_episodes: episodes of the no-tricks run (0 skips Fig 14).
+        env_config: static env config (backend).
+        hyper: CACLA hyperparameters (default :data:`TUNED`).
+        checkpoints: extra episode counts at which success is measured.
+        random_starts: start poses per task for the random-start success rate.
+    """
+    import json
+    import pathlib
+    import time
+
+    from grounding_jax._io import atomic_write_text
+
+    hyper = dict(TUNED if hyper is None else hyper)
+    hp = al.validate(al.ALHyper(cacla=cacla.CaclaHyper(**hyper)))
+    k_train, k_nt, k_home, k_rand, k10, k11, k13 = jax.random.split(key, 7)
+    cfg = al.ALConfig(env=env_config, phase1_episodes=phase1, phase2_episodes=phase2)
+    home = make_success(env_config)
+    rand = make_success(env_config, starts=random_starts)
+    rand_params = EnvParams(start_noise=RANDOM_START_NOISE)
+    success: dict[str, dict] = {}
+
+    def measure(episode: int, agents) -> None:
+        h = home(agents, k_home)
+        r = rand(agents, k_rand, rand_params)
+        success[str(episode)] = {"home": _summary(success_table(h), h),
+                                 "random_starts": _summary(success_table(r), r)}
+        ba = success[str(episode)]["home"]["by_action"]
+        print(f"al    episode {episode}: success from home point {ba['point']:.2f} touch "
+              f"{ba['touch']:.2f} push {ba['push']:.2f}; random-start point "
+              f"{success[str(episode)]['random_starts']['by_action']['point']:.2f}", flush=True)
+
+    stops = sorted({c for c in checkpoints if 0 < c < cfg.episodes} | {cfg.episodes})
+    t = time.perf_counter()
+    agents, metrics = al.train_in_chunks(cfg, jax.random.split(k_train, seeds), hp, stops,
+                                         measure)
+    train_s = time.perf_counter() - t
+    agent0 = _take(agents, 0)
+    res = {"seeds": seeds, "phase1": phase1, "phase2": phase2, "hyper": hyper,
+           "random_start_noise": RANDOM_START_NOISE, "success": success,
+           "final": success[str(cfg.episodes)], "train_s": train_s,
+           "rl_steps": int(np.asarray(metrics["steps"]).sum())}
+    res["fig10"] = fig10(agents, k10, env_config, out)
+    res["fig11"] = fig11(agent0, k11, env_config, out)
+    res["fig13"] = fig13(agent0, k13, env_config, out)
+    if no_tricks_episodes:
+        nt = al.ALConfig(env=env_config, phase1_episodes=0, phase2_episodes=no_tricks_episodes)
+        _, m_nt = jax.jit(jax.vmap(al.make_train(nt), in_axes=(0, None)))(
+            jax.random.split(k_nt, seeds), hp)
+        res["fig14"] = fig14(m_nt, out)
+        res["fig14_paper_schedule"] = fig14(metrics, out, phase1_episodes=phase1,
+                                            name="fig14_paper_schedule")
+    out = pathlib.Path(out)
+    atomic_write_text(out / "success.json", json.dumps(
+        {k: res[k] for k in ("seeds", "phase1", "phase2", "hyper", "random_start_noise",
+                             "success")}, indent=1) + "\n")
+    return res
