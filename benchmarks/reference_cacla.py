@@ -201,7 +201,6 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
 
     import jax
-    import jax.numpy as jnp
     import matplotlib
 
     matplotlib.use("Agg")
