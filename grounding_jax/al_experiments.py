@@ -19,6 +19,7 @@ import numpy as np
 from grounding_jax import al, cacla, scene
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
 
+DEFAULT_ENV = EnvConfig()
 POINT_L1 = 0.1
 PUSH_MOVED = 0.02
 TOUCH_LAST = 10
@@ -60,7 +61,7 @@ def episode_success(traj, task: Task) -> dict[str, jax.Array]:
             "wrong_moved": wrong.astype(jnp.float32), "final_reward": at(traj.reward)}
 
 
-def make_success(env_config: EnvConfig = EnvConfig(), layouts: tuple[int, ...] = SHAPE_LAYOUTS,
+def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = SHAPE_LAYOUTS,
                  starts: int = 1):
     """Build ``success(agents, key, env_params) -> dict`` for a batch of agents.
 
@@ -137,7 +138,7 @@ def _take(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
 
-def make_switch_eval(env_config: EnvConfig = EnvConfig(), steps: int = 100,
+def make_switch_eval(env_config: EnvConfig = DEFAULT_ENV, steps: int = 100,
                      switch_at: int = 20):
     """Build ``run(agent, key, first_task, second_task, env_params) -> traj``: the greedy
     actor for ``steps`` steps, the task replaced by ``second_task`` after ``switch_at`` steps
@@ -319,7 +320,7 @@ def _summary(table: dict, out: dict) -> dict:
 
 
 def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_episodes: int,
-        env_config: EnvConfig = EnvConfig(), hyper: dict | None = None,
+        env_config: EnvConfig = DEFAULT_ENV, hyper: dict | None = None,
         checkpoints: tuple[int, ...] = (450,), random_starts: int = 5) -> dict:
     """The AL results: success rates (home and random starts) at each of ``checkpoints``
     episodes and at the end, Figs 10, 11, 13 (agent 0 of the final batch) and Fig 14 (a
