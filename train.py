@@ -139,7 +139,7 @@ def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> dict:
 
     res = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"], phase2=st["al_phase2"],
                 no_tricks_episodes=st["al_no_tricks"], env_config=EnvConfig(backend=backend),
-                checkpoints=(450,))
+                checkpoints=(450, 1500))
     print(f"al    trained {res['seeds']} agents, {res['rl_steps']:,} RL steps in "
           f"{res['train_s']:.0f} s", flush=True)
     return res

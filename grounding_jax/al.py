@@ -13,6 +13,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from grounding_jax import cacla, scene
@@ -72,22 +73,37 @@ class ALConfig:
 
 @struct.dataclass
 class ALHyper:
-    """Traced hyperparameters: the learner's and the env's."""
+    """Traced hyperparameters: the learner's, the env's, and learning-rate decay.
+
+    ``actor_lr_decay`` / ``critic_lr_decay`` / ``sigma_decay``: the value at episode ``e`` is
+    ``v * decay ** (e / (episodes - 1))`` -- geometric from ``v`` at the first episode to
+    ``v * decay`` at the last; 1.0 keeps it constant (the paper).
+    """
 
     cacla: cacla.CaclaHyper = cacla.CaclaHyper()
     env: EnvParams = EnvParams()
+    actor_lr_decay: Any = 1.0
+    critic_lr_decay: Any = 1.0
+    sigma_decay: Any = 1.0
 
 
 def validate(hp: ALHyper) -> ALHyper:
     """ValueError naming the field for bad concrete values (before any compile)."""
     cacla.validate(hp.cacla)
     hp.env.validate()
+    for name in ("actor_lr_decay", "critic_lr_decay", "sigma_decay"):
+        v = getattr(hp, name)
+        if not isinstance(v, jax.core.Tracer):
+            arr = np.asarray(v, dtype=float)
+            if not np.all(np.isfinite(arr)) or not np.all((arr > 0) & (arr <= 1)):
+                raise ValueError(f"{name}: must be in (0, 1], got {v!r}")
     return hp
 
 
 def make_episodes(config: ALConfig):
-    """Build ``run(agent, keys, phase1, hp) -> (agent, metrics)``: one episode per key, in
-    order, under ``lax.scan`` (``phase1`` [episodes]: 1.0 where the phase-1 rule applies).
+    """Build ``run(agent, keys, plan, hp) -> (agent, metrics)``: one episode per key, in
+    order, under ``lax.scan``. ``plan`` (from :func:`schedule`) holds per-episode arrays:
+    ``phase1`` (1.0 where the phase-1 rule applies) and ``progress`` (0 -> 1 over the run).
 
     Training in chunks of episodes (a host loop with progress and checkpoints) calls this on
     consecutive slices of the keys; the result equals one :func:`make_train` call.
@@ -99,13 +115,17 @@ def make_episodes(config: ALConfig):
     length = config.env.episode_length
 
     def episode(agent: cacla.Agent, xs, hp: ALHyper):
-        key, phase1 = xs
+        key, plan = xs
         k_task, k_reset, k_steps = jax.random.split(key, 3)
         ka, kp, kl = jax.random.split(k_task, 3)
         task = Task(action=jax.random.choice(ka, actions),
                     position=jax.random.choice(kp, positions),
                     layout=jax.random.randint(kl, (), 0, n_layouts, jnp.int32))
-        chp = hp.cacla.replace(phase1=phase1)
+        x = plan["progress"]
+        chp = hp.cacla.replace(phase1=plan["phase1"],
+                               actor_lr=hp.cacla.actor_lr * hp.actor_lr_decay ** x,
+                               critic_lr=hp.cacla.critic_lr * hp.critic_lr_decay ** x,
+                               sigma=hp.cacla.sigma * hp.sigma_decay ** x)
         state = env.reset(k_reset, task, hp.env)
 
         def step(carry, k):
@@ -135,17 +155,21 @@ def make_episodes(config: ALConfig):
         }
         return agent, metrics
 
-    def run(agent: cacla.Agent, keys: jax.Array, phase1: jax.Array, hp: ALHyper):
-        return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, phase1))
+    def run(agent: cacla.Agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
+        return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, plan))
 
     return run
 
 
-def schedule(key: jax.Array, config: ALConfig) -> tuple[cacla.Agent, jax.Array, jax.Array]:
-    """The key split once: (initial agent, one key per episode, phase-1 flags per episode)."""
+def schedule(key: jax.Array, config: ALConfig
+             ) -> tuple[cacla.Agent, jax.Array, dict[str, jax.Array]]:
+    """The key split once: (initial agent, one key per episode, the per-episode plan:
+    ``phase1`` flags and ``progress`` 0 -> 1)."""
     k_init, k_eps = jax.random.split(key)
-    phase1 = (jnp.arange(config.episodes) < config.phase1_episodes).astype(jnp.float32)
-    return cacla.init(k_init, config.cacla), jax.random.split(k_eps, config.episodes), phase1
+    e = jnp.arange(config.episodes)
+    plan = {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
+            "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
+    return cacla.init(k_init, config.cacla), jax.random.split(k_eps, config.episodes), plan
 
 
 def make_train(config: ALConfig):
@@ -163,8 +187,8 @@ def make_train(config: ALConfig):
     run = make_episodes(config)
 
     def train(key: jax.Array, hp: ALHyper) -> tuple[cacla.Agent, dict[str, jax.Array]]:
-        agent, keys, phase1 = schedule(key, config)
-        return run(agent, keys, phase1, hp)
+        agent, keys, plan = schedule(key, config)
+        return run(agent, keys, plan, hp)
 
     return train
 
@@ -183,11 +207,13 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
                          f"got {stops!r}")
     hp_axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp)
     run = jax.jit(jax.vmap(make_episodes(config), in_axes=(0, 0, None, hp_axes)))
-    agents, ep_keys, phase1 = jax.vmap(lambda k: schedule(k, config))(keys)
-    phase1 = phase1[0]
+    agents, ep_keys, plan = jax.vmap(lambda k: schedule(k, config))(keys)
+    plan = jax.tree.map(lambda x: x[0], plan)
     parts, start = [], 0
     for stop in stops:
-        agents, m = run(agents, ep_keys[:, start:stop], phase1[start:stop], hp)
+        chunk = slice(start, stop)
+        agents, m = run(agents, ep_keys[:, chunk], jax.tree.map(lambda x, c=chunk: x[c], plan),
+                        hp)
         parts.append(m)
         start = stop
         if on_stop is not None:

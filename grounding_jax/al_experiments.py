@@ -307,9 +307,11 @@ def fig14(metrics: dict[str, np.ndarray], out, window: int = 50,
     return data
 
 
-#: Hyperparameters tuned here (the paper's defaults, ``cacla.CaclaHyper()``, barely learn in
-#: our env; see README "Action learner"): grid over sigma, both learning rates and gamma.
-TUNED = {"actor_lr": 0.01, "critic_lr": 0.1, "sigma": 0.3, "gamma": 0.0}
+#: Hyperparameters tuned here on all 9 tasks (the paper's lr 0.001 barely learns in our env;
+#: see README "Action learner"): the best of a grid over sigma, both learning rates and gamma
+#: (3 seeds x 1500 episodes per cell). sigma 0.3 learned faster per task but its exploration
+#: knocks the neighbouring objects, which ends most training episodes early.
+TUNED = {"actor_lr": 0.03, "critic_lr": 0.3, "sigma": 0.1, "gamma": 0.0}
 RANDOM_START_NOISE = 0.5
 
 
