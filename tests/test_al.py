@@ -51,6 +51,8 @@ def test_vmapped_agents_equal_separate_runs(small_train):
     (lambda: al.ALConfig(actions=(0, 5)), "actions"),
     (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(sigma=0.0))), "sigma"),
     (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=-1.0))), "actor_lr"),
+    (lambda: al.validate(al.ALHyper(sigma_decay=0.0)), "sigma_decay"),
+    (lambda: al.validate(al.ALHyper(actor_lr_decay=1.5)), "actor_lr_decay"),
 ])
 def test_bad_config_names_the_field(make, field):
     with pytest.raises(ValueError, match=field):
@@ -95,3 +97,27 @@ def test_training_in_chunks_equals_one_run(small_train):
         np.testing.assert_array_equal(np.asarray(agents.actor.w1[i]), np.asarray(agent.actor.w1))
     with pytest.raises(ValueError, match="stops"):
         al.train_in_chunks(SMALL, keys, hp, [2, 3])
+
+
+def test_decay_reaches_the_final_value_at_the_last_episode():
+    cfg = al.ALConfig(phase1_episodes=1, phase2_episodes=4)
+    _, _, plan = al.schedule(jax.random.key(0), cfg)
+    np.testing.assert_allclose(np.asarray(plan["progress"]), [0, 0.25, 0.5, 0.75, 1.0])
+    np.testing.assert_array_equal(np.asarray(plan["phase1"]), [1, 0, 0, 0, 0])
+
+
+def test_actor_lr_decay_freezes_the_actor_in_the_last_episode():
+    # phase-1 rule on point tasks: the actor is updated in most steps of every episode
+    cfg = al.ALConfig(phase1_episodes=4, phase2_episodes=0, actions=(0,), random_layout=False)
+    keys = jax.random.split(jax.random.key(2), 1)
+    hp = al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=0.05), actor_lr_decay=1e-9)
+    seen = {}
+    agents, _ = al.train_in_chunks(cfg, keys, hp, [3, 4],
+                                   lambda e, a: seen.setdefault(e, jax.device_get(a)))
+    before = seen[3]
+    np.testing.assert_allclose(np.asarray(agents.actor.w1), before.actor.w1, atol=1e-7)
+    assert not np.allclose(np.asarray(agents.critic.w1), before.critic.w1)
+    # while in earlier episodes the actor did move
+    _, m0 = al.train_in_chunks(cfg, keys, al.ALHyper(cacla=hp.cacla), [3, 4],
+                               lambda e, a: seen.setdefault(("plain", e), jax.device_get(a)))
+    assert not np.allclose(seen[("plain", 4)].actor.w1, seen[("plain", 3)].actor.w1)
