@@ -16,7 +16,8 @@ Semantics follow the paper (section 2.2) and ``SPEC.md``:
 - moving a wrong object (further than ``wrong_move_threshold`` from where it stood) ends the
   episode ``wrong_move_extra_steps`` steps later; otherwise it ends after ``episode_length``.
 
-``done`` is sticky: stepping a finished episode keeps ``done`` true (learners mask with it).
+``done`` is absorbing: stepping a finished episode returns it unchanged (on the C backend its
+physics is skipped), so batches of episodes can run in lockstep and learners mask with it.
 NaN entries of an action are replaced by zero (no move) and counted in
 ``metrics["nan_actions"]``; they never reach the physics state.
 """
@@ -327,7 +328,7 @@ class Env:
         action = jnp.where(nan, 0.0, action)
         target = scale_joints(state.qpos[self._idx.arm_qpos]) + params.action_scale * action
         ctrl = jnp.clip(unscale_joints(target), self._range[:, 0], self._range[:, 1])
-        qpos, qvel, sensordata = self._physics_step(state.qpos, state.qvel, ctrl)
+        qpos, qvel, sensordata = self._physics_step(state.qpos, state.qvel, ctrl, ~state.done)
         obs, reward, terms = self._evaluate(qpos, sensordata, state.task, state.object_start,
                                             params)
         step = state.step + 1
@@ -337,11 +338,14 @@ class Env:
             (wrong_since >= 0) & (step - wrong_since >= params.wrong_move_extra_steps))
         metrics = {**terms, "nan_actions": state.metrics["nan_actions"] + jnp.sum(nan)}
         metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
-        return state.replace(
-            qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=state.done | ended, step=step,
+        new = state.replace(
+            qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=ended, step=step,
             wrong_since=wrong_since, sensordata=sensordata, metrics=metrics,
             info=self._info(sensordata, ctrl),
         )
+        # a finished episode is absorbing: its state stays as it ended (and on the C backend
+        # its physics is not run at all)
+        return jax.tree.map(lambda n, o: jnp.where(state.done, o, n), new, state)
 
     def set_task(self, state: State, task: Task) -> State:
         """Replace the goal mid-episode (Fig 13): the arm and objects stay where they are.

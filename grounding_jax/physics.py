@@ -28,7 +28,7 @@ from grounding_jax import scene
 
 BACKENDS = ("mujoco", "mjx")
 
-StepFn = Callable[[jax.Array, jax.Array, jax.Array], tuple[jax.Array, jax.Array, jax.Array]]
+StepFn = Callable[..., tuple[jax.Array, jax.Array, jax.Array]]
 ForwardFn = Callable[[jax.Array, jax.Array], jax.Array]
 
 
@@ -58,25 +58,32 @@ class _MujocoRunner:
         if self.nstate != 1 + m.nq + m.nv:
             raise RuntimeError(f"unexpected physics state size {self.nstate} for this scene")
 
-    def step(self, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, substeps: int):
+    def step(self, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, substeps: int,
+             live: np.ndarray | None = None):
+        """Simulate the rows where ``live`` (all if None); other rows come back unchanged
+        with zero sensor data (the env discards them: finished episodes cost no physics)."""
         m = self.model
         lead = qpos.shape[:-1]
-        qp = np.asarray(qpos, np.float64).reshape(-1, m.nq)
-        qv = np.asarray(qvel, np.float64).reshape(-1, m.nv)
+        qp = np.asarray(qpos, np.float32).reshape(-1, m.nq)
+        qv = np.asarray(qvel, np.float32).reshape(-1, m.nv)
         u = np.asarray(ctrl, np.float64).reshape(-1, 1, m.nu)
-        n = qp.shape[0]
-        state0 = np.concatenate([np.zeros((n, 1)), qp, qv], axis=1)
-        with self.lock:
-            states, sensors = self.pool.rollout(
-                m, self.datas, state0, u, nstep=substeps,
-                initial_warmstart=np.zeros((n, m.nv)),
-            )
-        last = states[:, -1]
-        return (
-            last[:, 1 : 1 + m.nq].astype(np.float32).reshape(*lead, m.nq),
-            last[:, 1 + m.nq :].astype(np.float32).reshape(*lead, m.nv),
-            sensors[:, -1].astype(np.float32).reshape(*lead, m.nsensordata),
-        )
+        rows = np.arange(qp.shape[0]) if live is None else np.flatnonzero(np.ravel(live))
+        qp_out, qv_out = qp.copy(), qv.copy()
+        sens_out = np.zeros((qp.shape[0], m.nsensordata), np.float32)
+        if rows.size:
+            n = rows.size
+            state0 = np.concatenate([np.zeros((n, 1)), qp[rows], qv[rows]], axis=1)
+            with self.lock:
+                states, sensors = self.pool.rollout(
+                    m, self.datas, state0.astype(np.float64), u[rows], nstep=substeps,
+                    initial_warmstart=np.zeros((n, m.nv)),
+                )
+            last = states[:, -1]
+            qp_out[rows] = last[:, 1 : 1 + m.nq]
+            qv_out[rows] = last[:, 1 + m.nq :]
+            sens_out[rows] = sensors[:, -1]
+        return (qp_out.reshape(*lead, m.nq), qv_out.reshape(*lead, m.nv),
+                sens_out.reshape(*lead, m.nsensordata))
 
     def forward(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         m = self.model
@@ -108,15 +115,17 @@ def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
     idx = scene.index()
     f32 = jnp.float32
 
-    def step(qpos, qvel, ctrl):
+    def step(qpos, qvel, ctrl, live=None):
         shapes = (
             jax.ShapeDtypeStruct(qpos.shape, f32),
             jax.ShapeDtypeStruct(qvel.shape, f32),
             jax.ShapeDtypeStruct(qpos.shape[:-1] + (idx.nsensordata,), f32),
         )
+        if live is None:
+            live = jnp.ones(qpos.shape[:-1], bool)
         return jax.pure_callback(
-            lambda q, v, u: mujoco_runner().step(q, v, u, substeps),
-            shapes, qpos, qvel, ctrl, vmap_method="broadcast_all",
+            lambda q, v, u, lv: mujoco_runner().step(q, v, u, substeps, lv),
+            shapes, qpos, qvel, ctrl, live, vmap_method="broadcast_all",
         )
 
     def forward(qpos, qvel):
@@ -148,7 +157,8 @@ def _mjx_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
         d = mjx.make_data(mx)
         return d.replace(qpos=qpos, qvel=qvel, ctrl=qpos[idx.arm_qpos])
 
-    def step(qpos, qvel, ctrl):
+    def step(qpos, qvel, ctrl, live=None):
+        del live  # vectorized: every row is computed anyway; the env discards finished ones
         d = _data(qpos, qvel).replace(ctrl=ctrl)
         d = jax.lax.fori_loop(0, substeps, lambda _, x: mjx.step(mx, x), d)
         return d.qpos, d.qvel, d.sensordata
@@ -160,8 +170,10 @@ def _mjx_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
 
 
 def make_physics(backend: str, substeps: int) -> tuple[StepFn, ForwardFn]:
-    """The backend's ``step(qpos, qvel, ctrl) -> (qpos, qvel, sensordata)`` and
+    """The backend's ``step(qpos, qvel, ctrl, live=None) -> (qpos, qvel, sensordata)`` and
     ``forward(qpos, qvel) -> sensordata``, both pure JAX functions (jit/vmap/scan-safe).
+    ``live`` (bool per scene) lets the C backend skip scenes whose episode has ended; their
+    outputs are then meaningless and must be discarded by the caller.
 
     Args:
         backend: ``"mujoco"`` (C MuJoCo rollouts, CPU) or ``"mjx"`` (pure JAX).

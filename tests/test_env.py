@@ -233,3 +233,11 @@ def test_bad_action_shape_and_task_range(env_c):
         env_c.reset(jax.random.key(0), bad)
     with pytest.raises(ValueError, match="start_noise"):
         env_c.reset(jax.random.key(0), gj.make_task("push", "left"), gj.EnvParams(start_noise=-1))
+
+
+def test_a_finished_episode_is_absorbing(env_c):
+    s = env_c.reset(jax.random.key(0), gj.make_task("push", "left"))
+    s = env_c.step(s, jnp.ones(4)).replace(done=jnp.asarray(True))
+    after = env_c.step(s, -jnp.ones(4))
+    for a, b in zip(jax.tree.leaves(s), jax.tree.leaves(after), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
