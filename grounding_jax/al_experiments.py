@@ -315,6 +315,58 @@ TUNED = {"actor_lr": 0.03, "critic_lr": 0.3, "sigma": 0.1, "gamma": 0.0}
 RANDOM_START_NOISE = 0.5
 
 
+def exploration_knocks(key: jax.Array, env_config: EnvConfig = DEFAULT_ENV,
+                       sigmas: tuple[float, ...] = (0.1, 0.3), episodes: int = 16) -> dict:
+    """How often exploration alone knocks a wrong object: a perfect point policy (tracking the
+    stored pose) plus Gaussian noise of each ``sigma``, ``episodes`` per position.
+
+    Returns:
+        {sigma: {"wrong_moved_share": ..., "final_point_l1": ...}} over all episodes.
+    """
+    from grounding_jax import scripted
+    from grounding_jax.env import Env, make_task
+
+    env = Env(env_config)
+    poses = jnp.asarray(scene.pointing_configs(), jnp.float32)
+
+    def episode(k, position, sigma):
+        task = make_task("point", 0)
+        task = task.replace(position=position)
+        waypoints = jnp.repeat(poses[position][None], env_config.episode_length, axis=0)
+
+        def body(s, kk):
+            a = scripted.tracking_action(waypoints, s.step, s.obs)
+            return env.step(s, a + sigma * jax.random.normal(kk, (4,))), None
+
+        last, _ = jax.lax.scan(body, env.reset(k, task),
+                               jax.random.split(k, env_config.episode_length))
+        return last.wrong_since >= 0, last.metrics["point_l1"]
+
+    run = jax.jit(jax.vmap(episode, in_axes=(0, 0, None)))
+    keys = jax.random.split(key, 3 * episodes)
+    positions = jnp.repeat(jnp.arange(3, dtype=jnp.int32), episodes)
+    out = {}
+    for sigma in sigmas:
+        wrong, l1 = run(keys, positions, jnp.float32(sigma))
+        out[str(sigma)] = {"wrong_moved_share": float(np.mean(wrong)),
+                           "final_point_l1": float(np.mean(l1))}
+    return out
+
+
+def _tail(metrics: dict, frac: float = 0.1) -> dict:
+    """Means over the last ``frac`` of a run's episodes: return per action, wrong-move share,
+    steps per episode."""
+    n = np.asarray(metrics["return"]).shape[1]
+    sl = slice(n - max(1, int(frac * n)), None)
+    act = np.asarray(metrics["action"])[:, sl]
+    ret = np.asarray(metrics["return"])[:, sl]
+    return {"episodes": [int(sl.start), n],
+            "return_by_action": {a: float(ret[act == i].mean()) if np.any(act == i) else None
+                                 for i, a in enumerate(scene.ACTIONS)},
+            "wrong_moved_share": float(np.asarray(metrics["wrong_moved"])[:, sl].mean()),
+            "mean_steps": float(np.asarray(metrics["steps"])[:, sl].mean())}
+
+
 def _summary(table: dict, out: dict) -> dict:
     l1 = np.asarray(out["final_point_l1"])[..., np.asarray(out["action"]) == 0]
     return {**table, "point_l1_median": float(np.median(l1)),
@@ -347,7 +399,7 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
 
     hyper = dict(TUNED if hyper is None else hyper)
     hp = al.validate(al.ALHyper(cacla=cacla.CaclaHyper(**hyper)))
-    k_train, k_nt, k_home, k_rand, k10, k11, k13 = jax.random.split(key, 7)
+    k_train, k_nt, k_home, k_rand, k10, k11, k13, k_knock = jax.random.split(key, 8)
     cfg = al.ALConfig(env=env_config, phase1_episodes=phase1, phase2_episodes=phase2)
     home = make_success(env_config)
     rand = make_success(env_config, starts=random_starts)
@@ -373,7 +425,8 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
     res = {"seeds": seeds, "phase1": phase1, "phase2": phase2, "hyper": hyper,
            "random_start_noise": RANDOM_START_NOISE, "success": success,
            "final": success[str(cfg.episodes)], "train_s": train_s,
-           "rl_steps": int(np.asarray(metrics["steps"]).sum())}
+           "rl_steps": int(np.asarray(metrics["steps"]).sum()), "training_tail": _tail(metrics),
+           "exploration_knocks": exploration_knocks(k_knock, env_config)}
     res["fig10"] = fig10(agents, k10, env_config, out)
     res["fig11"] = fig11(agent0, k11, env_config, out)
     res["fig13"] = fig13(agent0, k13, env_config, out)
@@ -382,6 +435,7 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
         _, m_nt = jax.jit(jax.vmap(al.make_train(nt), in_axes=(0, None)))(
             jax.random.split(k_nt, seeds), hp)
         res["fig14"] = fig14(m_nt, out)
+        res["no_tricks_tail"] = _tail(m_nt)
         res["fig14_paper_schedule"] = fig14(metrics, out, phase1_episodes=phase1,
                                             name="fig14_paper_schedule")
     out = pathlib.Path(out)
