@@ -12,12 +12,26 @@ object moved.
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import pathlib
+import time
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, scene
-from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
+from grounding_jax import al, cacla, scene, scripted
+from grounding_jax._io import atomic_write_text
+from grounding_jax.env import (
+    DEFAULT_PARAMS,
+    Env,
+    EnvConfig,
+    EnvParams,
+    Task,
+    make_task,
+    scale_joints,
+)
 
 DEFAULT_ENV = EnvConfig()
 POINT_L1 = 0.1
@@ -111,17 +125,10 @@ def success_table(out: dict[str, jax.Array]) -> dict[str, object]:
 
 # ------------------------------------------------------------------------------ experiments
 def _save(out, name: str, fig, data: dict) -> None:
-    import json
-    import pathlib
-
-    from grounding_jax._io import atomic_write_text
-
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
     fig.savefig(out / f"{name}.png", dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
+    _plt().close(fig)
     atomic_write_text(out / f"{name}.json", json.dumps(data, indent=1) + "\n")
 
 
@@ -143,10 +150,6 @@ def make_switch_eval(env_config: EnvConfig = DEFAULT_ENV, steps: int = 100,
     """Build ``run(agent, key, first_task, second_task, env_params) -> traj``: the greedy
     actor for ``steps`` steps, the task replaced by ``second_task`` after ``switch_at`` steps
     (Fig 13). The episode length is raised to ``steps`` so it does not end on its own."""
-    import dataclasses
-
-    from grounding_jax.env import Env
-
     env = Env(dataclasses.replace(env_config, episode_length=steps))
 
     def run(agent, key, first: Task, second: Task, params: EnvParams = DEFAULT_PARAMS):
@@ -192,8 +195,6 @@ def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> di
 def fig11(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
           starts: int = 5, start_noise: float = 0.5) -> dict:
     """Fig 11: "point left" from ``starts`` random start poses: joints and reward per step."""
-    from grounding_jax.env import make_task
-
     plt = _plt()
     evaluate = al.make_eval(env_config)
     params = EnvParams(start_noise=start_noise)
@@ -226,8 +227,6 @@ def fig11(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
 
 def scale_pointing() -> jax.Array:
     """The stored pointing poses in scaled joint units, ``[3 positions, 4]``."""
-    from grounding_jax.env import scale_joints
-
     return scale_joints(jnp.asarray(scene.pointing_configs(), jnp.float32))
 
 
@@ -239,8 +238,6 @@ SWITCHES = (("point", "left", "point", "right"), ("point", "middle", "push", "mi
 def fig13(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
           steps: int = 100, switch_at: int = 20) -> dict:
     """Fig 13: 100-step runs where the action or the target changes at step 20."""
-    from grounding_jax.env import make_task
-
     plt = _plt()
     run = jax.jit(make_switch_eval(env_config, steps, switch_at))
     fig, axes = plt.subplots(1, len(SWITCHES), figsize=(4 * len(SWITCHES), 3.2))
@@ -252,7 +249,7 @@ def fig13(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
         ax.axvline(switch_at, color="grey", ls=":")
         ax.set_title(f"{a1} {p1} -> {a2} {p2}", fontsize=9)
         ax.set_xlabel("step")
-        ok = episode_success(jax.tree.map(jnp.asarray, traj), make_task(a2, p2))
+        ok = episode_success(traj, make_task(a2, p2))
         rows.append({"first": f"{a1} {p1}", "second": f"{a2} {p2}",
                      "reward_before_switch": float(r[switch_at - 1]),
                      "reward_after_switch": float(r[switch_at]),
@@ -323,9 +320,6 @@ def exploration_knocks(key: jax.Array, env_config: EnvConfig = DEFAULT_ENV,
     Returns:
         {sigma: {"wrong_moved_share": ..., "final_point_l1": ...}} over all episodes.
     """
-    from grounding_jax import scripted
-    from grounding_jax.env import Env, make_task
-
     env = Env(env_config)
     poses = jnp.asarray(scene.pointing_configs(), jnp.float32)
 
@@ -391,12 +385,6 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
         checkpoints: extra episode counts at which success is measured.
         random_starts: start poses per task for the random-start success rate.
     """
-    import json
-    import pathlib
-    import time
-
-    from grounding_jax._io import atomic_write_text
-
     hyper = dict(TUNED if hyper is None else hyper)
     hp = al.validate(al.ALHyper(cacla=cacla.CaclaHyper(**hyper)))
     k_train, k_nt, k_home, k_rand, k10, k11, k13, k_knock = jax.random.split(key, 8)
