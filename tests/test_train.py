@@ -44,6 +44,11 @@ def test_train_writes_report_metrics_and_every_figure(tmp_path):
         assert (tmp_path / "al" / f"{name}.png").stat().st_size > 1000
         assert f"al/{name}.png" in report
     assert not list(tmp_path.rglob("*.tmp"))
+    # the report can be rebuilt from metrics.json alone, identically
+    (tmp_path / "REPORT.md").unlink()
+    assert train.main(["--out", str(tmp_path), "--report-only"]) == 0
+    assert (tmp_path / "REPORT.md").read_text() == report
+    assert train.main(["--out", str(tmp_path / "nothing"), "--report-only"]) == 2
 
 
 @pytest.mark.parametrize("argv, field", [
