@@ -287,7 +287,10 @@ def fig14(metrics: dict[str, np.ndarray], out, window: int = 50,
                 per_agent.append(np.interp(np.arange(ret.shape[1]), sel[window - 1:], ma,
                                            left=np.nan))
             if per_agent:
-                curve = np.nanmean(np.stack(per_agent), axis=0)
+                stacked = np.stack(per_agent)
+                seen = np.isfinite(stacked).any(axis=0)  # before any agent's first window: nan
+                curve = np.full(stacked.shape[1], np.nan)
+                curve[seen] = np.nanmean(stacked[:, seen], axis=0)
                 ax.plot(curve, label=label)
                 curves[label] = [None if np.isnan(v) else float(v) for v in curve]
         if phase1_episodes:
