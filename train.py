@@ -2,8 +2,9 @@
 
 What runs today: the env check (scripted point and push episodes for every position, on the
 chosen physics backend), the target localizer (TL) experiments -- accuracy, Figs 6 and 7, the
-pixel-noise test -- and the action learner (AL): success rates, Figs 10, 11, 13, 14. AN and the
-SOM are not built yet; the report lists them as skipped.
+pixel-noise test -- the action learner (AL): success rates, Figs 10, 11, 13, 14 -- and the
+action namer (AN: ESN naming, Fig 15) with the SOM (Fig 12). The sweeps of Figs 8 and 9 and
+checkpoints are not built yet; the report says so.
 
     python train.py                      # quick profile (small grids, few seeds)
     python train.py --profile paper      # the paper's settings (600 epochs, 5 seeds, full grids)
@@ -21,11 +22,13 @@ import time
 PROFILES = {
     "quick": {"tl_epochs": 200, "tl_seeds": 3, "tl_hidden": [5, 20, 50],
               "tl_replication": [1, 5, 20],
-              "al_seeds": 3, "al_phase1": 150, "al_phase2": 300, "al_no_tricks": 300},
+              "al_seeds": 3, "al_phase1": 150, "al_phase2": 300, "al_no_tricks": 300,
+              "an_seeds": 3, "an_tl_epochs": 200},
     "paper": {"tl_epochs": 600, "tl_seeds": 5, "tl_hidden": [5, 10, 20, 30, 40, 50, 75, 100],
               "tl_replication": [1, 2, 5, 10, 15, 20, 25, 30],
               # the paper's schedule is 150 + 300 episodes: success is measured there too
-              "al_seeds": 5, "al_phase1": 150, "al_phase2": 2850, "al_no_tricks": 2000},
+              "al_seeds": 5, "al_phase1": 150, "al_phase2": 2850, "al_no_tricks": 2000,
+              "an_seeds": 5, "an_tl_epochs": 600},
 }
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks"}
@@ -139,12 +142,52 @@ def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> dict:
     from grounding_jax import al_experiments as E
     from grounding_jax.env import EnvConfig
 
-    res = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"], phase2=st["al_phase2"],
+    res, agents = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"],
+                        phase2=st["al_phase2"],
                 no_tricks_episodes=st["al_no_tricks"], env_config=EnvConfig(backend=backend),
                 checkpoints=(450, 1500))
     print(f"al    trained {res['seeds']} agents, {res['rl_steps']:,} RL steps in "
           f"{res['train_s']:.0f} s", flush=True)
+    return res, agents
+
+
+def an_experiments(key, out: pathlib.Path, st: dict, backend: str, agents) -> dict:
+    """The AN results (ESN naming, Fig 15) and the SOM (Fig 12), from AL agent 0."""
+    import jax
+
+    from grounding_jax import an
+    from grounding_jax.env import EnvConfig
+
+    agent = jax.tree.map(lambda x: x[0], agents)
+    res = an.run(key, out, agent, seeds=st["an_seeds"], tl_epochs=st["an_tl_epochs"],
+                 env_config=EnvConfig(backend=backend))
+    print(f"an    naming accuracy train {res['train']['acc_mean']:.3f} test "
+          f"{res['test']['acc_mean']:.3f} (random starts {res['test_random']['acc_mean']:.3f});"
+          f" SOM purity action {res['fig12']['purity_action']:.2f} position "
+          f"{res['fig12']['purity_position']:.2f}", flush=True)
     return res
+
+
+def _an_report(an: dict) -> list[str]:
+    sd = lambda r: f"{_pct(r['acc_mean'])} ± {100 * r['acc_std']:.1f}"  # noqa: E731
+    f12 = an["fig12"]
+    return [
+        "", "## Action namer and SOM", "",
+        f"ESN 90 -> 50 linear reservoir (spectral radius 0.9, 20% connectivity) -> 9, readout "
+        f"by pseudo-inverse over all steps; {an['seeds']} seeds (each its own reservoir and "
+        f"2/3 : 1/3 split of the 216 configurations), {an['steps']}-step sequences of AL agent "
+        f"0 and a TL (H=50, n=20; test accuracy {_pct(an['tl_test_acc'])}). Correct = both "
+        "words right at the last step.", "",
+        "| result | paper | ours |", "|---|---|---|",
+        f"| train accuracy | > 99% | {sd(an['train'])} |",
+        f"| test accuracy (home start, zero initial state) | > 99% | {sd(an['test'])} |",
+        f"| test accuracy, random arm start and random initial state | > 99% | "
+        f"{sd(an['test_random'])} |",
+        f"| steps until the naming settles (median; random starts) | a few | "
+        f"{an['test']['settle_median']:.1f} ({an['test_random']['settle_median']:.1f}) |",
+        f"| Fig 12: SOM cluster purity by action / by position | clusters by both | "
+        f"{f12['purity_action']:.2f} / {f12['purity_position']:.2f} |",
+        "", "![Fig 15](an/fig15.png)", "![Fig 12](an/fig12.png)"]
 
 
 def _al_report(al: dict) -> list[str]:
@@ -219,7 +262,7 @@ def _pct(v: float) -> str:
     return f"{100 * v:.1f}%"
 
 
-def report(args, env_rows: list[dict], tl: dict, al: dict, wall: dict) -> str:
+def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict) -> str:
     """REPORT.md: the paper's numbers beside ours, figures embedded."""
     a, n, nf = tl["accuracy"], tl["noise"], tl["noise_fresh"]
     f6 = {p["hidden"]: p for p in tl["fig6"]["points"]}
@@ -236,7 +279,7 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, wall: dict) -> str:
         "| TL target localizer, Figs 6, 7, noise (issue 4) | done: below |",
         "| AL action learner, Figs 10, 11, 13, 14 (issue 5) | done: below (success goals "
         "missed, see there); Figs 8, 9 (sweeps) come with the sweep runner (issue 7) |",
-        "| AN action namer + SOM, Figs 12, 15 (issue 6) | skipped: not built yet |",
+        "| AN action namer + SOM, Figs 12, 15 (issue 6) | done: below |",
         "", "## Target localizer", "",
         "| result | paper | ours |", "|---|---|---|",
         f"| test accuracy, H=50, n=20 | ~95% | {_pct(a['test_acc_mean'])}{sd(a)} |",
@@ -279,6 +322,7 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, wall: dict) -> str:
         "memorizes each training pattern's flips and test accuracy falls below chance (the "
         "paper reports ~75%); with fresh flips at every presentation the noise regularizes.",
         *_al_report(al),
+        *_an_report(an),
         "", "## Scripted episodes (env check)", "",
         "| action | position | final reward | point L1 | target moved (cm) | others moved (cm) |",
         "|---|---|---|---|---|---|",
@@ -308,11 +352,11 @@ def main(argv: list[str] | None = None) -> int:
         for k in ("profile", "backend", "seed"):
             setattr(args, k, data[k])
         atomic_write_text(out / "REPORT.md", report(args, data["scripted_episodes"], data["tl"],
-                                                    data["al"], data["wall_s"]))
+                                                    data["al"], data["an"], data["wall_s"]))
         print(f"rewrote {out / 'REPORT.md'} from {out / 'metrics.json'}")
         return 0
     out.mkdir(parents=True, exist_ok=True)
-    k_env, k_tl, k_al = jax.random.split(jax.random.key(args.seed), 3)  # the one split
+    k_env, k_tl, k_al, k_an = jax.random.split(jax.random.key(args.seed), 4)  # the one split
     wall = {}
     t = time.perf_counter()
     env_rows = env_check(k_env, args.backend)
@@ -321,13 +365,16 @@ def main(argv: list[str] | None = None) -> int:
     tl = tl_experiments(k_tl, out / "tl", args.settings)
     wall["tl"] = time.perf_counter() - t
     t = time.perf_counter()
-    al = al_experiments(k_al, out / "al", args.settings, args.backend)
+    al, agents = al_experiments(k_al, out / "al", args.settings, args.backend)
     wall["al"] = time.perf_counter() - t
+    t = time.perf_counter()
+    an = an_experiments(k_an, out / "an", args.settings, args.backend, agents)
+    wall["an"] = time.perf_counter() - t
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl, "al": al,
-              "wall_s": wall, "version": gj.__version__}
+              "an": an, "wall_s": wall, "version": gj.__version__}
     atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
-    atomic_write_text(out / "REPORT.md", report(args, env_rows, tl, al, wall))
+    atomic_write_text(out / "REPORT.md", report(args, env_rows, tl, al, an, wall))
     print(f"wrote {out / 'REPORT.md'} and {out / 'metrics.json'} "
           f"({sum(wall.values()):.1f} s)")
     return 0

@@ -387,6 +387,9 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
         hyper: CACLA hyperparameters (default :data:`TUNED`).
         checkpoints: extra episode counts at which success is measured.
         random_starts: start poses per task for the random-start success rate.
+
+    Returns:
+        (results dict -- what the JSON files hold, the trained agents [seeds]).
     """
     hyper = dict(TUNED if hyper is None else hyper)
     hp = al.validate(al.ALHyper(cacla=cacla.CaclaHyper(**hyper)))
@@ -433,4 +436,4 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
     atomic_write_text(out / "success.json", json.dumps(
         {k: res[k] for k in ("seeds", "phase1", "phase2", "hyper", "random_start_noise",
                              "success")}, indent=1) + "\n")
-    return res
+    return res, agents

@@ -13,7 +13,8 @@ import train  # noqa: E402
 
 SMALL = ["--set", "tl_epochs=20", "--set", "tl_seeds=2", "--set", "tl_hidden=5,20",
          "--set", "tl_replication=1,20", "--set", "al_seeds=2", "--set", "al_phase1=10",
-         "--set", "al_phase2=10", "--set", "al_no_tricks=40"]
+         "--set", "al_phase2=10", "--set", "al_no_tricks=40",
+         "--set", "an_seeds=2", "--set", "an_tl_epochs=20"]
 
 
 def test_train_writes_report_metrics_and_every_figure(tmp_path):
@@ -43,6 +44,13 @@ def test_train_writes_report_metrics_and_every_figure(tmp_path):
     for name in ("fig10", "fig11", "fig13", "fig14", "fig14_paper_schedule"):
         assert (tmp_path / "al" / f"{name}.png").stat().st_size > 1000
         assert f"al/{name}.png" in report
+    an = data["an"]
+    assert an["seeds"] == 2 and len(an["test"]["acc_per_seed"]) == 2
+    assert all(0.0 <= an[k]["acc_mean"] <= 1.0 for k in ("train", "test", "test_random"))
+    assert "| train accuracy | > 99% |" in report
+    for name in ("fig15", "fig12"):
+        assert (tmp_path / "an" / f"{name}.png").stat().st_size > 1000
+        assert f"an/{name}.png" in report
     assert not list(tmp_path.rglob("*.tmp"))
     # the report can be rebuilt from metrics.json alone, identically
     (tmp_path / "REPORT.md").unlink()

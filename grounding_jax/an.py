@@ -1,0 +1,248 @@
+"""The action namer (AN): data from a trained actor and TL, ESN training over seeds, Fig 15,
+and the toroidal SOM of the actor's hidden layer (Fig 12).
+
+Data (paper, section 2.3): for each of the 216 configurations (36 layouts x 6 target words) and
+each of the 3 actions, the trained actor runs for ``steps`` steps toward the named object; its
+40 hidden activations at each step, beside the 50 hidden activations of the trained TL for that
+configuration, are the ESN's 90 inputs; the target is the sentence (action word + target word).
+Configurations are split 2/3 : 1/3 into train and test (all 3 actions of a configuration on
+the same side). Test sequences are also run from random arm starts with a random initial
+reservoir state.
+
+A sequence is named correctly when both decoded words are right at its last step.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax import al, cacla, esn, scene, som, tl, tl_data
+from grounding_jax._io import atomic_write_text
+from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
+
+PAPER = {"train_acc": 0.99, "test_acc": 0.99}
+DEFAULT_ENV = EnvConfig()
+DEFAULT_ESN = esn.ESNConfig()
+DEFAULT_SOM = som.SOMConfig()
+
+
+def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
+              ) -> tuple[np.ndarray, float]:
+    """Train one TL (H=50, n=20) and return its hidden activations for the 216 configurations
+    ``[216, 50]`` and its test accuracy."""
+    data = tl_data.load() if data is None else data
+    cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20, eval_every=epochs,
+                      pixel_budget=int(data.bitmaps.sum(1).max()))  # clean bitmaps: sparse rows
+    hp = tl.TLHyper(hidden=50, replication=20)
+    params, m = jax.jit(tl.make_train(cfg, data))(key, hp)
+    x = tl.build_inputs(jnp.asarray(data.bitmaps), jnp.asarray(data.symbols), hp, cfg)
+    _, hid_mask = tl.masks(hp, cfg)
+    return np.asarray(tl.apply(params, x, hid_mask)[0]), float(m["final_test_acc"])
+
+
+def actor_sequences(agent: cacla.Agent, key: jax.Array, tasks: Task, steps: int,
+                    params: EnvParams = DEFAULT_PARAMS, env_config: EnvConfig = DEFAULT_ENV
+                    ) -> np.ndarray:
+    """The greedy actor's hidden activations ``[N, steps, hidden]`` for a batch of tasks."""
+    evaluate = al.make_eval(env_config, steps)
+    keys = jax.random.split(key, tasks.action.shape[0])
+    run = jax.jit(jax.vmap(lambda k, t: evaluate(agent, k, t, params)[2]))
+    return np.asarray(run(keys, tasks))
+
+
+def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 100,
+            start_noise: float = 0.0, env_config: EnvConfig = DEFAULT_ENV) -> dict:
+    """All 648 sequences (216 configurations x 3 actions).
+
+    Returns:
+        ``inputs`` [648, steps, 90], ``actor_hidden`` [648, steps, 40], ``action``, ``word``,
+        ``position``, ``config`` [648] (configuration index 0..215).
+    """
+    data = tl_data.load()
+    config = np.repeat(np.arange(tl_data.N_CONFIGS), 3)
+    action = np.tile(np.arange(3), tl_data.N_CONFIGS)
+    tasks = Task(action=jnp.asarray(action, jnp.int32),
+                 position=jnp.asarray(data.labels[config], jnp.int32),
+                 layout=jnp.asarray(data.layout[config], jnp.int32))
+    h = actor_sequences(agent, key, tasks, steps, EnvParams(start_noise=start_noise), env_config)
+    tl_part = np.broadcast_to(tl_h[config][:, None], (len(config), steps, tl_h.shape[1]))
+    return {"inputs": np.concatenate([h, tl_part], axis=2).astype(np.float32),
+            "actor_hidden": h, "action": action, "word": data.word[config],
+            "position": data.labels[config], "config": config}
+
+
+def _named(esn_net: esn.ESN, inputs: np.ndarray, x0: jax.Array, action, word):
+    states = jax.vmap(lambda u, x: esn.run(esn_net, u, x))(jnp.asarray(inputs), x0)
+    a, w = esn.decode(esn.apply(esn_net, states))
+    ok = (np.asarray(a) == np.asarray(action)[:, None]) & (np.asarray(w) ==
+                                                           np.asarray(word)[:, None])
+    return states, ok  # ok: [N, T] both words right at each step
+
+
+def _settle(ok: np.ndarray) -> np.ndarray:
+    """Per sequence: the first step from which the naming stays correct (T if never)."""
+    t = ok.shape[1]
+    wrong_after = np.flip(np.cumsum(np.flip(~ok, 1), 1), 1) > 0  # a wrong step at or after t
+    return np.where(wrong_after.all(1), t, np.argmin(wrong_after, axis=1))
+
+
+def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 2 / 3,
+                config: esn.ESNConfig = DEFAULT_ESN, ridge: float = 0.0) -> dict:
+    """One seed: split, init the ESN, fit the readout on the training sequences (home starts,
+    zero initial state), and name train / test / random-start test sequences."""
+    k_split, k_init, k_x0 = jax.random.split(key, 3)
+    perm = np.asarray(jax.random.permutation(k_split, tl_data.N_CONFIGS))
+    n_train = int(round(train_fraction * tl_data.N_CONFIGS))
+    train_cfg = np.zeros(tl_data.N_CONFIGS, bool)
+    train_cfg[perm[:n_train]] = True
+    tr, te = train_cfg[home["config"]], ~train_cfg[home["config"]]
+    net = esn.init(k_init, config)
+    zeros = jnp.zeros((int(tr.sum()), config.n_res))
+    states, _ = _named(net, home["inputs"][tr], zeros, home["action"][tr], home["word"][tr])
+    d = esn.targets(jnp.asarray(home["action"][tr]), jnp.asarray(home["word"][tr]))
+    d = jnp.broadcast_to(d[:, None], states.shape[:2] + (d.shape[-1],))
+    net = net.replace(w_out=esn.fit_readout(states.reshape(-1, config.n_res),
+                                            d.reshape(-1, d.shape[-1]), ridge))
+    out = {"net": net}
+    x0_rand = jax.random.uniform(k_x0, (int(te.sum()), config.n_res), minval=-1, maxval=1)
+    for name, src, sel, x0 in (("train", home, tr, jnp.zeros((int(tr.sum()), config.n_res))),
+                               ("test", home, te, jnp.zeros((int(te.sum()), config.n_res))),
+                               ("test_random", rand, te, x0_rand)):
+        _, ok = _named(net, src["inputs"][sel], x0, src["action"][sel], src["word"][sel])
+        out[name] = {"acc": float(ok[:, -1].mean()), "acc_per_step": ok.mean(0).tolist(),
+                     "settle_mean": float(_settle(ok).mean()),
+                     "settle_median": float(np.median(_settle(ok)))}
+    out["train_mask"], out["x0_rand"] = tr, x0_rand
+    return out
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(out: pathlib.Path, name: str, fig, data: dict) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / f"{name}.png", dpi=110)
+    _plt().close(fig)
+    atomic_write_text(out / f"{name}.json", json.dumps(data, indent=1) + "\n")
+
+
+OUTPUT_NAMES = (*scene.ACTIONS, *tl_data.TARGET_WORDS)
+
+
+def fig15(res: dict, home: dict, rand: dict, out: pathlib.Path) -> dict:
+    """Fig 15: the 9 outputs over time for "point/touch/push sphere" -- a training
+    configuration (home start, zero state) and a test one (random start and state)."""
+    plt = _plt()
+    net, tr = res["net"], res["train_mask"]
+    sphere = tl_data.word_index("sphere")
+    fig, axes = plt.subplots(2, 3, figsize=(13, 6), sharey=True)
+    data = {"outputs": OUTPUT_NAMES, "runs": []}
+    te_index = np.flatnonzero(~tr)
+    for row, (src, sel, label) in enumerate(((home, tr, "training set, home start"),
+                                             (rand, ~tr, "test set, random start and state"))):
+        for a in range(3):
+            cand = np.flatnonzero(sel & (src["word"] == sphere) & (src["action"] == a))
+            i = int(cand[0])
+            x0 = (jnp.zeros(net.w_res.shape[0]) if row == 0 else
+                  res["x0_rand"][int(np.searchsorted(te_index, i))])
+            y = np.asarray(esn.apply(net, esn.run(net, jnp.asarray(src["inputs"][i]), x0)))
+            ax = axes[row, a]
+            for k in range(y.shape[1]):
+                ax.plot(y[:, k], lw=1.6 if k in (a, 3 + sphere) else 0.8,
+                        ls="-" if k < 3 else "--", label=OUTPUT_NAMES[k])
+            ax.set_title(f"{scene.ACTIONS[a]} sphere ({label})", fontsize=9)
+            ax.set_xlabel("step")
+            data["runs"].append({"action": scene.ACTIONS[a], "set": label,
+                                 "config": int(src["config"][i]), "outputs": y.tolist()})
+    axes[0, 0].set_ylabel("output")
+    axes[1, 0].set_ylabel("output")
+    axes[0, 2].legend(fontsize=7, ncol=3)
+    fig.suptitle("Fig 15: ESN outputs (solid: action words, dashed: target words)")
+    fig.tight_layout()
+    _save(out, "fig15", fig, data)
+    return {"configs": [r["config"] for r in data["runs"]]}
+
+
+def fig12(key: jax.Array, home: dict, out: pathlib.Path, skip: int = 0, every: int = 3,
+          config: som.SOMConfig = DEFAULT_SOM) -> dict:
+    """Fig 12: a toroidal SOM of the actor's hidden activations (steps ``skip``.. of the
+    home-start sequences, every ``every``-th), drawn twice: cells coloured by majority action
+    and by majority position, marker size by hit count. Returns the purities."""
+    plt = _plt()
+    h = home["actor_hidden"][:, skip::every]  # [N, t, 40]
+    n_t = h.shape[1]
+    x = jnp.asarray(h.reshape(-1, h.shape[-1]))
+    labels = {"action": np.repeat(home["action"], n_t),
+              "position": np.repeat(home["position"], n_t)}
+    w = som.train(key, x, config)
+    units = np.asarray(som.bmu(w, x))
+    cells = np.asarray(som.grid(config))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    res = {"rows": config.rows, "cols": config.cols, "samples": int(x.shape[0])}
+    for ax, (field, lab) in zip(axes, labels.items(), strict=True):
+        names = scene.ACTIONS if field == "action" else scene.POSITIONS
+        hits = np.bincount(units, minlength=len(cells))
+        major = np.array([np.bincount(lab[units == u], minlength=3).argmax() if hits[u] else -1
+                          for u in range(len(cells))])
+        for k, name in enumerate(names):
+            sel = major == k
+            ax.scatter(cells[sel, 1], cells[sel, 0], s=8 + 300 * hits[sel] / hits.max(),
+                       label=name, alpha=0.8)
+        ax.scatter(cells[major < 0, 1], cells[major < 0, 0], s=4, c="lightgrey")
+        p = som.purity(units, lab)
+        res[f"purity_{field}"] = p
+        ax.set_title(f"by {field} (purity {p:.2f})")
+        ax.set_aspect("equal")
+        ax.invert_yaxis()
+        ax.legend(fontsize=8, loc="upper right")
+    fig.suptitle(f"Fig 12: toroidal SOM ({config.rows}x{config.cols}) of actor hidden "
+                 "activations; marker size = hits")
+    fig.tight_layout()
+    _save(out, "fig12", fig, res)
+    return res
+
+
+def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, steps: int = 100,
+        env_config: EnvConfig = DEFAULT_ENV, start_noise: float = 0.5) -> dict:
+    """The AN results: accuracy over ``seeds`` ESNs (train, test, test from random starts),
+    the settling time, Fig 15 and the SOM (Fig 12). Writes JSON + PNG under ``out``.
+
+    Args:
+        key: one PRNG key, split once here.
+        out: output folder.
+        agent: a trained actor (one agent).
+        seeds: ESNs (and train/test splits) to train.
+        tl_epochs: epochs of the TL whose hidden layer is the ESN's "what" input.
+        steps: steps per sequence (paper: 100).
+        env_config: static env config.
+        start_noise: half-width of the random arm starts of the random-start test.
+    """
+    out = pathlib.Path(out)
+    k_tl, k_home, k_rand, k_esn, k_som = jax.random.split(key, 5)
+    tl_h, tl_acc = tl_hidden(k_tl, tl_epochs)
+    home = dataset(agent, tl_h, k_home, steps, 0.0, env_config)
+    rand = dataset(agent, tl_h, k_rand, steps, start_noise, env_config)
+    runs = [train_namer(k, home, rand) for k in jax.random.split(k_esn, seeds)]
+    res = {"seeds": seeds, "steps": steps, "tl_test_acc": tl_acc, "paper": PAPER}
+    for name in ("train", "test", "test_random"):
+        accs = [r[name]["acc"] for r in runs]
+        res[name] = {"acc_mean": float(np.mean(accs)), "acc_std": float(np.std(accs)),
+                     "acc_per_seed": accs,
+                     "settle_median": float(np.mean([r[name]["settle_median"] for r in runs])),
+                     "acc_per_step_mean": np.mean([r[name]["acc_per_step"] for r in runs],
+                                                  0).tolist()}
+    res["fig15"] = fig15(runs[0], home, rand, out)
+    res["fig12"] = fig12(k_som, home, out)
+    atomic_write_text(out / "an.json", json.dumps(res, indent=1) + "\n")
+    return res
