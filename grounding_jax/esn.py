@@ -112,7 +112,10 @@ def fit_readout(states: jax.Array, targets: jax.Array, ridge: float = 0.0) -> ja
     if ridge < 0:
         raise ValueError(f"ridge: must be >= 0, got {ridge!r}")
     if ridge == 0:
-        return jnp.linalg.pinv(states) @ targets
+        # Cut singular values only at float precision: the default cut-off scales with the
+        # number of rows (all time steps: tens of thousands), which for a linear reservoir
+        # drops directions the naming needs (measured: train accuracy 59-97% -> 100%).
+        return jnp.linalg.pinv(states, rtol=jnp.finfo(states.dtype).eps) @ targets
     gram = states.T @ states + ridge * jnp.eye(states.shape[1], dtype=states.dtype)
     return jnp.linalg.solve(gram, states.T @ targets)
 

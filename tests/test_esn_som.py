@@ -41,6 +41,16 @@ def test_readout_recovers_a_known_linear_map(ridge):
     np.testing.assert_allclose(np.asarray(got), np.asarray(w), atol=1e-3)
 
 
+def test_readout_recovers_a_map_from_ill_conditioned_states():
+    # many rows, columns spanning 4 decades: a pinv cut-off that grows with the row count
+    # (numpy/jax default) drops the small directions; the fit must keep them
+    scale = jnp.logspace(0, -4, 50)
+    x = jax.random.normal(jax.random.key(5), (20000, 50)) * scale
+    w = jax.random.normal(jax.random.key(6), (50, 9))
+    got = np.asarray(esn.fit_readout(x, x @ w))
+    np.testing.assert_allclose(got, np.asarray(w), rtol=0.05, atol=0.05)
+
+
 def test_decode_and_targets_round_trip():
     d = esn.targets(jnp.array([2, 0]), jnp.array([5, 1]))
     a, word = esn.decode(d)
