@@ -37,11 +37,12 @@ def test_namer_names_train_and_test_sequences(fixture_data):
     home, rand, _, _ = fixture_data
     res = an.train_namer(jax.random.key(4), home, rand)
     assert res["train_mask"].sum() == 3 * 144  # 2/3 of the 216 configurations, 3 actions each
-    # measured on this fixture: train 98.6%, test 99.1%, random starts 98.1%; naming settles
-    # at step 0 (home) / 1 (random start and state), median
-    assert res["train"]["acc"] >= 0.95
-    assert res["test"]["acc"] >= 0.95
-    assert res["test_random"]["acc"] >= 0.95
+    # measured on this fixture: train 100%, test 97.2%, random starts 95.4% (not the
+    # paper's > 99% on test: this TL generalizes to 79% of its test configurations); naming
+    # settles at step 0 (home) / 1 (random start and state), median
+    assert res["train"]["acc"] >= 0.99
+    assert res["test"]["acc"] >= 0.94
+    assert res["test_random"]["acc"] >= 0.92
     assert res["test_random"]["settle_median"] <= 5
     # an untrained readout names nothing reliably
     zero = res["net"].replace(w_out=res["net"].w_out * 0)
