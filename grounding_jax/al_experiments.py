@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import al, cacla, scene, scripted
-from grounding_jax._io import atomic_write_text
+from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import (
     DEFAULT_PARAMS,
     Env,
@@ -124,23 +124,6 @@ def success_table(out: dict[str, jax.Array]) -> dict[str, object]:
 
 
 # ------------------------------------------------------------------------------ experiments
-def _save(out, name: str, fig, data: dict) -> None:
-    out = pathlib.Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out / f"{name}.png", dpi=110)
-    _plt().close(fig)
-    atomic_write_text(out / f"{name}.json", json.dumps(data, indent=1) + "\n")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _take(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
@@ -169,7 +152,7 @@ def make_switch_eval(env_config: EnvConfig = DEFAULT_ENV, steps: int = 100,
 def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> dict:
     """Fig 10: reward per step of the greedy actor for the 9 action-position pairs (layout 0);
     agent 0 drawn, all agents' rewards in the JSON."""
-    plt = _plt()
+    plt = pyplot()
     evaluate = al.make_eval(env_config)
     tasks = all_tasks((0,))
     run = jax.jit(jax.vmap(jax.vmap(lambda ag, t: evaluate(ag, key, t)[1].reward,
@@ -188,14 +171,14 @@ def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> di
     data = {"tasks": [f"{a} {p}" for a in scene.ACTIONS for p in scene.POSITIONS],
             "reward_agent0": r[0].tolist(), "reward_mean": r.mean(0).tolist(),
             "final_reward_per_agent": r[:, :, -1].tolist()}
-    _save(out, "fig10", fig, data)
+    write_figure(out, "fig10", data, fig)
     return data
 
 
 def fig11(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
           starts: int = 5, start_noise: float = 0.5) -> dict:
     """Fig 11: "point left" from ``starts`` random start poses: joints and reward per step."""
-    plt = _plt()
+    plt = pyplot()
     evaluate = al.make_eval(env_config)
     params = EnvParams(start_noise=start_noise)
     task = make_task("point", "left")
@@ -221,7 +204,7 @@ def fig11(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
     l1 = np.asarray(traj.metrics["point_l1"][:, -1])
     data = {"start_noise": start_noise, "joints": joints.tolist(), "reward": reward.tolist(),
             "final_point_l1": l1.tolist(), "success": (l1 < POINT_L1).tolist()}
-    _save(out, "fig11", fig, data)
+    write_figure(out, "fig11", data, fig)
     return data
 
 
@@ -238,7 +221,7 @@ SWITCHES = (("point", "left", "point", "right"), ("point", "middle", "push", "mi
 def fig13(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
           steps: int = 100, switch_at: int = 20) -> dict:
     """Fig 13: 100-step runs where the action or the target changes at step 20."""
-    plt = _plt()
+    plt = pyplot()
     run = jax.jit(make_switch_eval(env_config, steps, switch_at))
     fig, axes = plt.subplots(1, len(SWITCHES), figsize=(4 * len(SWITCHES), 3.2))
     rows = []
@@ -259,7 +242,7 @@ def fig13(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
     fig.suptitle(f"Fig 13: goal switched at step {switch_at} (agent 0)")
     fig.tight_layout()
     data = {"switch_at": switch_at, "runs": rows}
-    _save(out, "fig13", fig, data)
+    write_figure(out, "fig13", data, fig)
     return data
 
 
@@ -267,7 +250,7 @@ def fig14(metrics: dict[str, np.ndarray], out, window: int = 50,
           phase1_episodes: int = 0, name: str = "fig14") -> dict:
     """Fig 14: per-episode return by action and by target position over a training run
     (moving average over ``window`` episodes of each kind, mean over agents)."""
-    plt = _plt()
+    plt = pyplot()
     ret = np.asarray(metrics["return"])  # [agents, episodes]
     window = min(window, max(5, ret.shape[1] // 15))  # short runs: a shorter average
     groups = {"action": (np.asarray(metrics["action"]), scene.ACTIONS),
@@ -303,7 +286,7 @@ def fig14(metrics: dict[str, np.ndarray], out, window: int = 50,
     what = "phase 1 then plain CACLA" if phase1_episodes else "no tricks (plain CACLA)"
     fig.suptitle(f"Fig 14: training run, {what}, {ret.shape[0]} agents")
     fig.tight_layout()
-    _save(out, name, fig, data)
+    write_figure(out, name, data, fig)
     return data
 
 

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import al, cacla, esn, scene, som, tl, tl_data
-from grounding_jax._io import atomic_write_text
+from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
 
 PAPER = {"train_acc": 0.99, "test_acc": 0.99}
@@ -121,29 +121,13 @@ def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 
     return out
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(out: pathlib.Path, name: str, fig, data: dict) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out / f"{name}.png", dpi=110)
-    _plt().close(fig)
-    atomic_write_text(out / f"{name}.json", json.dumps(data, indent=1) + "\n")
-
-
 OUTPUT_NAMES = (*scene.ACTIONS, *tl_data.TARGET_WORDS)
 
 
 def fig15(res: dict, home: dict, rand: dict, out: pathlib.Path) -> dict:
     """Fig 15: the 9 outputs over time for "point/touch/push sphere" -- a training
     configuration (home start, zero state) and a test one (random start and state)."""
-    plt = _plt()
+    plt = pyplot()
     net, tr = res["net"], res["train_mask"]
     sphere = tl_data.word_index("sphere")
     fig, axes = plt.subplots(2, 3, figsize=(13, 6), sharey=True)
@@ -170,7 +154,7 @@ def fig15(res: dict, home: dict, rand: dict, out: pathlib.Path) -> dict:
     axes[0, 2].legend(fontsize=7, ncol=3)
     fig.suptitle("Fig 15: ESN outputs (solid: action words, dashed: target words)")
     fig.tight_layout()
-    _save(out, "fig15", fig, data)
+    write_figure(out, "fig15", data, fig)
     return {"configs": [r["config"] for r in data["runs"]]}
 
 
@@ -179,7 +163,7 @@ def fig12(key: jax.Array, home: dict, out: pathlib.Path, skip: int = 0, every: i
     """Fig 12: a toroidal SOM of the actor's hidden activations (steps ``skip``.. of the
     home-start sequences, every ``every``-th), drawn twice: cells coloured by majority action
     and by majority position, marker size by hit count. Returns the purities."""
-    plt = _plt()
+    plt = pyplot()
     h = home["actor_hidden"][:, skip::every]  # [N, t, 40]
     n_t = h.shape[1]
     x = jnp.asarray(h.reshape(-1, h.shape[-1]))
@@ -209,7 +193,7 @@ def fig12(key: jax.Array, home: dict, out: pathlib.Path, skip: int = 0, every: i
     fig.suptitle(f"Fig 12: toroidal SOM ({config.rows}x{config.cols}) of actor hidden "
                  "activations; marker size = hits")
     fig.tight_layout()
-    _save(out, "fig12", fig, res)
+    write_figure(out, "fig12", res, fig)
     return res
 
 

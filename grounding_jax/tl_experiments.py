@@ -8,8 +8,6 @@ Grid points x seeds run as ``vmap``ped, ``jit``ted calls, one compile per hidden
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 import pathlib
 import time
 from typing import Any
@@ -19,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import tl, tl_data
-from grounding_jax._io import atomic_write_text
+from grounding_jax._io import pyplot, write_figure
 
 PAPER = {
     "accuracy": {"test_acc": 0.95, "train_acc": 1.0},
@@ -79,23 +77,6 @@ def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.
             for k, v in out.items()}
 
 
-def _write(out: pathlib.Path, name: str, payload: dict, fig) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / f"{name}.json", json.dumps(payload, indent=2) + "\n")
-    tmp_png = out / f".{name}.tmp.png"
-    fig.savefig(tmp_png, dpi=110, bbox_inches="tight")
-    os.replace(tmp_png, out / f"{name}.png")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _summary(m: dict[str, np.ndarray], i: int) -> dict[str, float]:
     best = m["test_acc"][i].max(axis=-1)  # best test accuracy over the evaluation points
     return {
@@ -122,7 +103,7 @@ def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 60
            "epochs": epochs, "seeds": seeds,
            **_summary(m, 0), "wall_s": time.perf_counter() - t,
            "paper": PAPER["noise" if noise else "accuracy"]}
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.2))
     ep = np.arange(1, m["test_acc"].shape[-1] + 1) * cfg.eval_every
     for key_, lab in (("train_acc", "train"), ("test_acc", "test")):
@@ -133,7 +114,7 @@ def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 60
            title=f"TL H=50 n=20{f' noise {noise:.0%} ({noise_mode})' if noise else ''}"
                  f" ({seeds} seeds)")
     ax.legend()
-    _write(out, name, res, fig)
+    write_figure(out, name, res, fig)
     plt.close(fig)
     return res
 
@@ -153,7 +134,7 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
     res = {"field": field, "values": [int(v) for v in values], "fixed": base, "seeds": seeds,
            "epochs": epochs, "points": points, "wall_s": time.perf_counter() - t,
            "paper": PAPER[name] if name in PAPER else None}
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.2))
     mu = np.array([p["test_acc_mean"] for p in points])
     sd = np.array([p["test_acc_std"] for p in points])
@@ -164,6 +145,6 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
     ax.set(xlabel=label, ylabel="accuracy", ylim=(0, 1.02),
            title=f"TL accuracy vs {label} ({seeds} seeds, {epochs} epochs)")
     ax.legend()
-    _write(out, name, res, fig)
+    write_figure(out, name, res, fig)
     plt.close(fig)
     return res
