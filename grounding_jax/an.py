@@ -76,12 +76,16 @@ def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 1
             "position": data.labels[config], "config": config}
 
 
-def _named(esn_net: esn.ESN, inputs: np.ndarray, x0: jax.Array, action, word):
-    states = jax.vmap(lambda u, x: esn.run(esn_net, u, x))(jnp.asarray(inputs), x0)
+def _states(esn_net: esn.ESN, inputs: np.ndarray, x0: jax.Array) -> jax.Array:
+    """Reservoir states ``[N, T, n_res]`` of a batch of sequences from initial states x0."""
+    return jax.vmap(lambda u, x: esn.run(esn_net, u, x))(jnp.asarray(inputs), x0)
+
+
+def _correct(esn_net: esn.ESN, states: jax.Array, action, word) -> np.ndarray:
+    """``[N, T]``: both decoded words right at each step."""
     a, w = esn.decode(esn.apply(esn_net, states))
-    ok = (np.asarray(a) == np.asarray(action)[:, None]) & (np.asarray(w) ==
-                                                           np.asarray(word)[:, None])
-    return states, ok  # ok: [N, T] both words right at each step
+    return (np.asarray(a) == np.asarray(action)[:, None]) & (np.asarray(w) ==
+                                                             np.asarray(word)[:, None])
 
 
 def _settle(ok: np.ndarray) -> np.ndarray:
@@ -102,21 +106,23 @@ def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 
     train_cfg[perm[:n_train]] = True
     tr, te = train_cfg[home["config"]], ~train_cfg[home["config"]]
     net = esn.init(k_init, config)
-    zeros = jnp.zeros((int(tr.sum()), config.n_res))
-    states, _ = _named(net, home["inputs"][tr], zeros, home["action"][tr], home["word"][tr])
+    states = _states(net, home["inputs"][tr], jnp.zeros((int(tr.sum()), config.n_res)))
     d = esn.targets(jnp.asarray(home["action"][tr]), jnp.asarray(home["word"][tr]))
     d = jnp.broadcast_to(d[:, None], states.shape[:2] + (d.shape[-1],))
     net = net.replace(w_out=esn.fit_readout(states.reshape(-1, config.n_res),
                                             d.reshape(-1, d.shape[-1]), ridge))
     out = {"net": net}
     x0_rand = jax.random.uniform(k_x0, (int(te.sum()), config.n_res), minval=-1, maxval=1)
-    for name, src, sel, x0 in (("train", home, tr, jnp.zeros((int(tr.sum()), config.n_res))),
-                               ("test", home, te, jnp.zeros((int(te.sum()), config.n_res))),
-                               ("test_random", rand, te, x0_rand)):
-        _, ok = _named(net, src["inputs"][sel], x0, src["action"][sel], src["word"][sel])
+    zeros_te = jnp.zeros((int(te.sum()), config.n_res))
+    # the reservoir states do not depend on the readout: the training ones are reused
+    for name, src, sel, st in (("train", home, tr, states),
+                               ("test", home, te, _states(net, home["inputs"][te], zeros_te)),
+                               ("test_random", rand, te,
+                                _states(net, rand["inputs"][te], x0_rand))):
+        ok = _correct(net, st, src["action"][sel], src["word"][sel])
+        settle = _settle(ok)
         out[name] = {"acc": float(ok[:, -1].mean()), "acc_per_step": ok.mean(0).tolist(),
-                     "settle_mean": float(_settle(ok).mean()),
-                     "settle_median": float(np.median(_settle(ok)))}
+                     "settle_mean": float(settle.mean()), "settle_median": float(np.median(settle))}
     out["train_mask"], out["x0_rand"] = tr, x0_rand
     return out
 
