@@ -137,7 +137,7 @@ def tl_experiments(key, out: pathlib.Path, st: dict) -> dict:
     return res
 
 
-def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> dict:
+def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> tuple[dict, object]:
     """The AL results: success rates, Figs 10, 11, 13, 14 (see ``al_experiments.run``)."""
     from grounding_jax import al_experiments as E
     from grounding_jax.env import EnvConfig
