@@ -134,18 +134,20 @@ def make_episodes(config: ALConfig):
             nxt = env.step(state, a, hp.env)
             tr = cacla.Transition(obs=state.obs, action=a, reward=nxt.reward, next_obs=nxt.obs,
                                   done=nxt.done, prev_reward=state.reward)
-            new, _ = cacla.update(agent, tr, chp, config.cacla)
+            new, info = cacla.update(agent, tr, chp, config.cacla)
             live = ~state.done  # steps after the episode ended change nothing
             agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
-            out = (jnp.where(live, nxt.reward, 0.0), live, nxt.metrics["touched_target"])
+            out = (jnp.where(live, nxt.reward, 0.0), live, nxt.metrics["touched_target"],
+                   jnp.where(live, info["delta"] ** 2, 0.0))
             return (agent, nxt), out
 
-        (agent, last), (rewards, live, touched) = jax.lax.scan(
+        (agent, last), (rewards, live, touched, delta_sq) = jax.lax.scan(
             step, (agent, state), jax.random.split(k_steps, length))
         steps = jnp.sum(live)
         late = (jnp.arange(length) >= steps - 10) & live
         metrics = {
             "return": jnp.sum(rewards), "final_reward": last.reward,
+            "td_error": jnp.sqrt(jnp.sum(delta_sq) / jnp.maximum(steps, 1)),
             "final_point_l1": last.metrics["point_l1"],
             "final_palm_target_dist": last.metrics["palm_target_dist"],
             "touched_target_late": jnp.any((touched > 0) & late).astype(jnp.float32),
@@ -180,7 +182,8 @@ def make_train(config: ALConfig):
 
     Returns:
         ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
-        steps taken), ``final_reward``, ``final_point_l1``, ``final_palm_target_dist``,
+        steps taken), ``final_reward``, ``td_error`` (the critic's RMS TD error over the
+        episode's steps), ``final_point_l1``, ``final_palm_target_dist``,
         ``touched_target_late`` (touched the target in one of the last 10 steps),
         ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
     """
@@ -194,10 +197,23 @@ def make_train(config: ALConfig):
 
 
 def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
-                    on_stop=None):
+                    on_stop=None, start: tuple | None = None, sharding=None):
     """Train a batch of agents (``keys`` [agents], ``hp`` batched or shared) in a host loop
     over chunks of episodes ending at each of ``stops`` (the last must be
-    ``config.episodes``); ``on_stop(episode, agents)`` is called after each chunk.
+    ``config.episodes``).
+
+    Args:
+        config: static config.
+        keys: one key per agent (split once, as in :func:`make_train`).
+        hp: hyperparameters; leaves with a leading axis are per agent.
+        stops: episode counts at which a chunk ends.
+        on_stop: ``on_stop(episode, agents, metrics)`` after each chunk, with the metrics so
+            far (``[agents, config.episodes]``, zeros after ``episode``) -- where progress
+            bars and checkpoints hang.
+        start: ``(episode, agents, metrics)`` saved by ``on_stop``: training resumes after
+            ``episode`` (the result is bit-identical to an uninterrupted run).
+        sharding: a ``jax.sharding.Sharding`` of the agent axis (e.g. over local devices);
+            None keeps the default device.
 
     Returns:
         (agents, metrics [agents, episodes]) -- equal to ``vmap(make_train(config))``.
@@ -208,17 +224,26 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
     hp_axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp)
     run = jax.jit(jax.vmap(make_episodes(config), in_axes=(0, 0, None, hp_axes)))
     agents, ep_keys, plan = jax.vmap(lambda k: schedule(k, config))(keys)
-    plan = jax.tree.map(lambda x: x[0], plan)
-    parts, start = [], 0
-    for stop in stops:
-        chunk = slice(start, stop)
+    plan = jax.tree.map(lambda x: x[0], plan)  # the same for every agent
+    done = 0
+    metrics = None
+    if start is not None:
+        done, agents, metrics = start
+    if sharding is not None:
+        agents, ep_keys, metrics = jax.device_put((agents, ep_keys, metrics), sharding)
+        hp = jax.tree.map(lambda x: jax.device_put(x, sharding) if jnp.ndim(x) else x, hp)
+    for stop in (s for s in stops if s > done):
+        chunk = slice(done, stop)
         agents, m = run(agents, ep_keys[:, chunk], jax.tree.map(lambda x, c=chunk: x[c], plan),
                         hp)
-        parts.append(m)
-        start = stop
+        if metrics is None:
+            metrics = jax.tree.map(lambda x: jnp.zeros(x.shape[:1] + (config.episodes,),
+                                                       x.dtype), m)
+        metrics = jax.tree.map(lambda a, b, c=chunk: a.at[:, c].set(b), metrics, m)
+        done = stop
         if on_stop is not None:
-            on_stop(stop, agents)
-    return agents, jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=1), *parts)
+            on_stop(stop, agents, metrics)
+    return agents, metrics
 
 
 def make_eval(env_config: EnvConfig | None = None, steps: int | None = None):

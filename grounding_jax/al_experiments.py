@@ -383,7 +383,7 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
     rand_params = EnvParams(start_noise=RANDOM_START_NOISE)
     success: dict[str, dict] = {}
 
-    def measure(episode: int, agents) -> None:
+    def measure(episode: int, agents, _metrics) -> None:
         h = home(agents, k_home)
         r = rand(agents, k_rand, rand_params)
         success[str(episode)] = {"home": _summary(success_table(h), h),

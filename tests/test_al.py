@@ -113,11 +113,11 @@ def test_actor_lr_decay_freezes_the_actor_in_the_last_episode():
     hp = al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=0.05), actor_lr_decay=1e-9)
     seen = {}
     agents, _ = al.train_in_chunks(cfg, keys, hp, [3, 4],
-                                   lambda e, a: seen.setdefault(e, jax.device_get(a)))
+                                   lambda e, a, _: seen.setdefault(e, jax.device_get(a)))
     before = seen[3]
     np.testing.assert_allclose(np.asarray(agents.actor.w1), before.actor.w1, atol=1e-7)
     assert not np.allclose(np.asarray(agents.critic.w1), before.critic.w1)
     # while in earlier episodes the actor did move
     _, m0 = al.train_in_chunks(cfg, keys, al.ALHyper(cacla=hp.cacla), [3, 4],
-                               lambda e, a: seen.setdefault(("plain", e), jax.device_get(a)))
+                               lambda e, a, _: seen.setdefault(("plain", e), jax.device_get(a)))
     assert not np.allclose(seen[("plain", 4)].actor.w1, seen[("plain", 3)].actor.w1)

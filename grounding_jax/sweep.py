@@ -1,0 +1,690 @@
+"""Hyperparameter sweeps from TOML files: ``python -m grounding_jax.sweep FILE [--set k=v]``.
+
+A sweep file names a module (``"al"`` or ``"tl"``), a grid, the fixed values and the figure::
+
+    module = "al"
+    figure = "fig8a"
+    title = "Fig 8A: critic learning rate"
+    seeds = 5
+    metric = "td_error"        # what the figure plots (see METRICS)
+    x = "critic_lr"            # the swept field on the x axis (default: the first grid key)
+    chunk = 50                 # episodes between progress updates and checkpoints (AL)
+
+    [params]                   # fixed values of any field (see FIELDS)
+    phase2_episodes = 350
+
+    [grid]                     # swept fields: every combination is a point
+    critic_lr = [0.0001, 0.001, 0.01, 0.1]
+
+How it runs: every key and value is checked against the module's fields before anything is
+compiled. Points are grouped by their *static* fields (network sizes, episode counts, backend:
+one compile per group); within a group every point x seed is one row of a ``vmap``ped batch
+whose *traced* fields (learning rates, sigma, ...) are arrays, and the batch axis is sharded
+over all local devices. The run keys come from one ``jax.random.key(seed)`` split once into
+points x seeds, so a run's result does not depend on the grouping, the devices or the executor.
+AL groups train in a host loop over chunks of episodes (progress bar, an orbax checkpoint after
+each chunk; ``--resume`` continues bit-identically); TL groups are checkpointed when done. Runs
+whose parameters or metrics are not finite are flagged ``diverged`` and left out of the means.
+``--executor ray`` sends each group to a Ray cluster as a task.
+
+Writes ``<out>/<name>/``: ``sweep.json`` (spec, per-point summaries, curves), ``runs.csv``
+(one row per run), ``<figure>.png`` / ``<figure>.json``, and ``checkpoints/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import itertools
+import json
+import math
+import pathlib
+import shutil
+import sys
+import time
+import tomllib
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax import al, cacla, physics, tl, tl_data
+from grounding_jax._io import atomic_write_text, pyplot, write_figure
+from grounding_jax.checkpoint import Checkpointer, CheckpointError
+from grounding_jax.env import EnvConfig, EnvParams
+
+MODULES = ("al", "tl")
+EXECUTORS = ("local", "ray")
+
+
+class SweepError(ValueError):
+    """A bad sweep file or override; the message names the file and the key."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Field:
+    """One sweepable field: static (changes compiled code: grouped) or traced (vmapped)."""
+
+    kind: str
+    type: type
+    default: Any
+    rule: str = ""
+    ok: Callable[[Any], bool] | None = None
+    choices: tuple | None = None
+
+
+def _pos(v) -> bool:
+    return v > 0
+
+
+def _int_at_least(n: int) -> tuple[str, Callable[[Any], bool]]:
+    return f"an integer >= {n}", lambda v: v >= n
+
+
+_CH, _DH, _EC = cacla.CaclaHyper(), al.ALHyper(), EnvConfig()
+_EP, _TH, _TC = EnvParams(), tl.TLHyper(), tl.TLConfig()
+
+FIELDS: dict[str, dict[str, Field]] = {
+    "al": {
+        "actor_hidden": Field("static", int, 40, *_int_at_least(1)),
+        "critic_hidden": Field("static", int, 20, *_int_at_least(1)),
+        "var": Field("static", bool, False),
+        "phase1_episodes": Field("static", int, 150, *_int_at_least(0)),
+        "phase2_episodes": Field("static", int, 300, *_int_at_least(0)),
+        "backend": Field("static", str, _EC.backend, choices=physics.BACKENDS),
+        "substeps": Field("static", int, _EC.substeps, *_int_at_least(1)),
+        "episode_length": Field("static", int, _EC.episode_length, *_int_at_least(1)),
+        "random_layout": Field("static", bool, True),
+        "actor_lr": Field("traced", float, _CH.actor_lr, "> 0", _pos),
+        "critic_lr": Field("traced", float, _CH.critic_lr, "> 0", _pos),
+        "sigma": Field("traced", float, _CH.sigma, "> 0", _pos),
+        "gamma": Field("traced", float, _CH.gamma, "in [0, 1]", lambda v: 0 <= v <= 1),
+        "var_beta": Field("traced", float, _CH.var_beta, "in (0, 1]", lambda v: 0 < v <= 1),
+        "actor_lr_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
+        "critic_lr_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
+        "sigma_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
+        "action_scale": Field("traced", float, _EP.action_scale, "> 0", _pos),
+        "touch_other_penalty": Field("traced", float, _EP.touch_other_penalty),
+        "touch_target_penalty": Field("traced", float, _EP.touch_target_penalty),
+        "start_noise": Field("traced", float, _EP.start_noise, ">= 0", lambda v: v >= 0),
+    },
+    "tl": {
+        # the hidden size could be traced (padded + masked), but one compile per size was
+        # measured faster (benchmarks/tl_throughput.py), so it is a group key
+        "hidden": Field("static", int, _TH.hidden, *_int_at_least(1)),
+        "epochs": Field("static", int, _TC.epochs, *_int_at_least(1)),
+        "eval_every": Field("static", int, _TC.eval_every, *_int_at_least(1)),
+        "noise_mode": Field("static", str, _TC.noise_mode, choices=tl.NOISE_MODES),
+        "lr": Field("traced", float, _TH.lr, "> 0", _pos),
+        "replication": Field("traced", int, _TH.replication, *_int_at_least(1)),
+        "noise": Field("traced", float, _TH.noise, "in [0, 1]", lambda v: 0 <= v <= 1),
+    },
+}
+
+#: the per-run metrics a figure may plot: AL -- per-episode training metrics (the summary is
+#: the mean over the last tenth of the episodes); TL -- the final value after training
+METRICS = {
+    "al": {"td_error": "critic's RMS TD error per episode",
+           "final_reward": "reward at the episode's last step",
+           "return": "sum of rewards over the episode",
+           "final_point_l1": "L1 distance to the pointing pose at the episode's end"},
+    "tl": {"test_acc": "test accuracy", "train_acc": "training accuracy",
+           "test_rmse": "test RMSE per output unit", "train_rmse": "training RMSE"},
+}
+TOP_KEYS = {"name": str, "module": str, "figure": str, "title": str, "description": str,
+            "seeds": int, "metric": str, "x": str, "chunk": int, "seed": int, "paper": str,
+            "params": dict, "grid": dict}
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """A validated sweep: fixed ``params`` and swept ``grid`` over the module's fields."""
+
+    name: str
+    module: str
+    figure: str
+    title: str
+    seeds: int
+    metric: str
+    x: str
+    chunk: int
+    seed: int
+    params: dict[str, Any]
+    grid: dict[str, list]
+    source: str = "<dict>"
+    description: str = ""
+    paper: str = ""
+
+    def points(self) -> list[dict[str, Any]]:
+        """Every grid combination, as a full assignment of the module's fields."""
+        base = {k: f.default for k, f in FIELDS[self.module].items()} | self.params
+        keys = list(self.grid)
+        return [base | dict(zip(keys, combo, strict=True))
+                for combo in itertools.product(*(self.grid[k] for k in keys))]
+
+    def groups(self) -> list[tuple[dict[str, Any], list[int]]]:
+        """Points grouped by their static fields: [(static values, point indices)], in order
+        of first appearance -- one compile each."""
+        static = [k for k, f in FIELDS[self.module].items() if f.kind == "static"]
+        out: dict[tuple, list[int]] = {}
+        pts = self.points()
+        for i, p in enumerate(pts):
+            out.setdefault(tuple(p[k] for k in static), []).append(i)
+        return [({k: pts[idx[0]][k] for k in static}, idx) for idx in out.values()]
+
+    def to_json(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name != "source"}
+
+
+def _err(source: str, key: str, msg: str) -> SweepError:
+    return SweepError(f"{source}: {key}: {msg}")
+
+
+def _check_value(source: str, module: str, key: str, value: Any) -> Any:
+    field = FIELDS[module][key.rpartition(".")[2]]
+    ok_type = (isinstance(value, bool) if field.type is bool else
+               isinstance(value, int) and not isinstance(value, bool) if field.type is int else
+               isinstance(value, (int, float)) and not isinstance(value, bool)
+               if field.type is float else isinstance(value, str))
+    if not ok_type:
+        raise _err(source, key, f"expected {field.type.__name__}, got {value!r} "
+                                f"({type(value).__name__})")
+    if field.type is float:
+        value = float(value)
+        if not math.isfinite(value):
+            raise _err(source, key, f"must be finite, got {value!r}")
+    if field.choices is not None and value not in field.choices:
+        raise _err(source, key, f"unknown value {value!r}; accepted values: {field.choices}")
+    if field.ok is not None and not field.ok(value):
+        raise _err(source, key, f"must be {field.rule}, got {value!r}")
+    return value
+
+
+def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
+    """Validate a sweep (as parsed from TOML) and return it; SweepError names the bad key.
+
+    Nothing is compiled or written here.
+    """
+    unknown = sorted(set(data) - set(TOP_KEYS))
+    if unknown:
+        raise _err(source, unknown[0], f"unknown key; accepted keys: {sorted(TOP_KEYS)}")
+    for k, t in TOP_KEYS.items():
+        if k in data and not (isinstance(data[k], t) and not (t is int and
+                                                               isinstance(data[k], bool))):
+            raise _err(source, k, f"expected {t.__name__}, got {data[k]!r}")
+    module = data.get("module")
+    if module not in MODULES:
+        raise _err(source, "module", f"unknown module {module!r}; accepted values: {MODULES}")
+    fields = FIELDS[module]
+    params, grid = dict(data.get("params", {})), dict(data.get("grid", {}))
+    if not grid:
+        raise _err(source, "grid", "empty: give at least one field with a list of values")
+    for section, table in (("params", params), ("grid", grid)):
+        for k in table:
+            if k not in fields:
+                raise _err(source, f"{section}.{k}", f"unknown field for module {module!r}; "
+                                                     f"accepted fields: {sorted(fields)}")
+    for k in set(params) & set(grid):
+        raise _err(source, f"grid.{k}", "also set in [params]; set it in one place")
+    for k, v in params.items():
+        params[k] = _check_value(source, module, f"params.{k}", v)
+    for k, vs in grid.items():
+        if not isinstance(vs, list) or not vs:
+            raise _err(source, f"grid.{k}", f"must be a non-empty list of values, got {vs!r}")
+        grid[k] = [_check_value(source, module, f"grid.{k}", v) for v in vs]
+        if len(set(map(repr, grid[k]))) != len(grid[k]):
+            raise _err(source, f"grid.{k}", f"repeated values in {vs!r}")
+    seeds = data.get("seeds", 5)
+    if seeds < 1:
+        raise _err(source, "seeds", f"must be an integer >= 1, got {seeds!r}")
+    chunk = data.get("chunk", 50)
+    if chunk < 1:
+        raise _err(source, "chunk", f"must be an integer >= 1, got {chunk!r}")
+    metric = data.get("metric", next(iter(METRICS[module])))
+    if metric not in METRICS[module]:
+        raise _err(source, "metric", f"unknown metric {metric!r} for module {module!r}; "
+                                     f"accepted values: {tuple(METRICS[module])}")
+    x = data.get("x", next(iter(grid)))
+    if x not in grid:
+        raise _err(source, "x", f"{x!r} is not a grid field; grid fields: {list(grid)}")
+    name = data.get("name", pathlib.Path(source).stem if source != "<dict>" else "sweep")
+    spec = SweepSpec(name=name, module=module, figure=data.get("figure", name),
+                     title=data.get("title", name), seeds=seeds, metric=metric, x=x,
+                     chunk=chunk, seed=data.get("seed", 0), params=params, grid=grid,
+                     source=source, description=data.get("description", ""),
+                     paper=data.get("paper", ""))
+    for static, _ in spec.groups():  # the module's own checks (cross-field rules)
+        try:
+            _module_config(spec, static)
+        except ValueError as e:
+            raise SweepError(f"{source}: {e}") from None
+    return spec
+
+
+def _parse_value(text: str) -> Any:
+    """An override's value: TOML syntax (1, 0.5, true, "s", [1, 2]); bare ``a,b`` is a list;
+    anything else is a string."""
+    for candidate in (text, f"[{text}]"):
+        try:
+            return tomllib.loads(f"v = {candidate}")["v"]
+        except tomllib.TOMLDecodeError:
+            continue
+    return text
+
+
+def apply_overrides(data: dict, overrides: Sequence[str], source: str) -> dict:
+    """``key=value`` overrides: a grid field gets a new list, a top-level key or any other
+    field a new value (in [params])."""
+    data = {**data, "params": dict(data.get("params", {})), "grid": dict(data.get("grid", {}))}
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise _err(source, f"--set {item!r}", "expected KEY=VALUE")
+        value = _parse_value(text)
+        if key in data["grid"]:
+            data["grid"][key] = value if isinstance(value, list) else [value]
+        elif key in TOP_KEYS and key not in ("params", "grid"):
+            data[key] = value
+        else:
+            data["params"][key] = value
+    return data
+
+
+def load_spec(path: str | pathlib.Path, overrides: Sequence[str] = ()) -> SweepSpec:
+    """Read, override and validate a sweep file."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise SweepError(f"{path}: no such sweep file")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise SweepError(f"{path}: not valid TOML ({e})") from None
+    return parse_spec(apply_overrides(data, overrides, str(path)), str(path))
+
+
+# ----------------------------------------------------------------------------- running groups
+def _module_config(spec: SweepSpec, static: dict[str, Any]):
+    if spec.module == "al":
+        return al.ALConfig(
+            env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
+                          episode_length=static["episode_length"]),
+            cacla=cacla.CaclaConfig(actor_hidden=static["actor_hidden"],
+                                    critic_hidden=static["critic_hidden"], var=static["var"]),
+            phase1_episodes=static["phase1_episodes"],
+            phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"])
+    pts = spec.points()
+    clean = all(p["noise"] == 0 for p in pts)
+    return tl.TLConfig(epochs=static["epochs"], eval_every=static["eval_every"],
+                       noise_mode=static["noise_mode"], max_hidden=static["hidden"],
+                       max_replication=max(p["replication"] for p in pts),
+                       pixel_budget=int(tl_data.load().bitmaps.sum(1).max()) if clean else 0)
+
+
+def _column(rows: list[dict], k: str, dtype) -> jnp.ndarray:
+    return jnp.asarray([r[k] for r in rows], dtype)
+
+
+def _hyper(spec: SweepSpec, rows: list[dict]):
+    """The traced fields of a batch of rows as arrays with a leading batch axis."""
+    f32 = jnp.float32
+    if spec.module == "tl":
+        return tl.TLHyper(lr=_column(rows, "lr", f32), hidden=_column(rows, "hidden", jnp.int32),
+                          replication=_column(rows, "replication", jnp.int32),
+                          noise=_column(rows, "noise", f32))
+    ch = cacla.CaclaHyper(**{k: _column(rows, k, f32) for k in
+                             ("actor_lr", "critic_lr", "sigma", "gamma", "var_beta")})
+    env = EnvParams(**{k: _column(rows, k, f32) for k in
+                       ("action_scale", "touch_other_penalty", "touch_target_penalty",
+                        "start_noise")})
+    return al.ALHyper(cacla=ch, env=env, **{k: _column(rows, k, f32) for k in
+                                            ("actor_lr_decay", "critic_lr_decay",
+                                             "sigma_decay")})
+
+
+def _batch_sharding(batch: int):
+    """(sharding of a leading batch axis over all local devices, padding rows needed)."""
+    devices = jax.local_devices()
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("batch",))
+    return (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch")),
+            (-batch) % len(devices))
+
+
+def _pad(tree, pad: int):
+    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[:1], pad, 0)])
+                        if pad and jnp.ndim(x) else x,
+                        tree)
+
+
+def _finite_rows(tree, batch: int) -> np.ndarray:
+    """Per row: every float leaf of the tree finite."""
+    ok = np.ones(batch, bool)
+    for leaf in jax.tree.leaves(tree):
+        a = np.asarray(leaf)
+        if np.issubdtype(a.dtype, np.floating):
+            ok &= np.isfinite(a.reshape(batch, -1)).all(1)
+    return ok
+
+
+def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path | None,
+              resume: bool = False, progress: Callable[[int], None] | None = None
+              ) -> dict[str, np.ndarray]:
+    """Train one static group: its points x seeds as one sharded, vmapped batch.
+
+    Args:
+        spec: the sweep.
+        group: index into ``spec.groups()``.
+        run_keys: raw key data ``[points * seeds, ...]`` of the *whole* sweep (row
+            ``point * seeds + seed``).
+        out: the sweep's output folder (checkpoints under ``out/checkpoints``); None: none.
+        resume: continue from this group's checkpoint if there is one.
+        progress: called with the number of run-episodes (AL) or run-epochs (TL) just done.
+
+    Returns:
+        ``metrics`` (each ``[rows, ...]``), ``finite`` ``[rows]`` and ``rows`` (indices into
+        points x seeds).
+    """
+    static, idx = spec.groups()[group]
+    rows = np.asarray([p * spec.seeds + s for p in idx for s in range(spec.seeds)])
+    points = spec.points()
+    batch_rows = [points[r // spec.seeds] for r in rows]
+    cfg = _module_config(spec, static)
+    keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
+    hp = _hyper(spec, batch_rows)
+    sharding, pad = _batch_sharding(len(rows))
+    keys, hp = _pad((keys, hp), pad)
+    ck = None
+    if out is not None:
+        ck = Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
+                          {"spec": spec.to_json(), "group": group, "static": static,
+                           "rows": rows.tolist(), "devices": jax.local_device_count()})
+        if ck.latest_step() is not None and not resume:
+            raise CheckpointError(f"{ck.directory}: holds a checkpoint of an earlier run; "
+                                  "pass --resume to continue it or --overwrite to start over")
+    if spec.module == "al":
+        metrics, params = _run_al(cfg, keys, hp, spec.chunk, sharding, ck, progress)
+    else:
+        metrics, params = _run_tl(cfg, keys, hp, sharding, ck, progress)
+    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
+    finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
+                           len(rows)) & _finite_rows(metrics, len(rows)))
+    return {"metrics": metrics, "finite": finite, "rows": rows}
+
+
+def chunk_stops(episodes: int, chunk: int) -> list[int]:
+    """Chunk ends: equal chunks of the largest divisor of ``episodes`` that is <= ``chunk``
+    (one compiled shape), unless that divisor is under half of ``chunk`` -- then chunks of
+    ``chunk`` and a shorter last one (a second compile)."""
+    size = max(d for d in range(1, min(chunk, episodes) + 1) if episodes % d == 0)
+    if size < min(chunk, episodes) / 2:
+        size = chunk
+    return list(range(size, episodes, size)) + [episodes]
+
+
+def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress):
+    stops = chunk_stops(cfg.episodes, chunk)
+    start = None
+    n = keys.shape[0]
+    if ck is not None and ck.latest_step() is not None:
+        like_agents = jax.eval_shape(lambda k: jax.vmap(lambda kk: al.schedule(kk, cfg)[0])(k),
+                                     keys)
+        like_m = jax.eval_shape(lambda k: jax.vmap(al.make_train(
+            dataclasses.replace(cfg, phase1_episodes=0, phase2_episodes=1)),
+            in_axes=(0, None))(k, al.ALHyper())[1], keys)
+        like_m = {k: jax.ShapeDtypeStruct((n, cfg.episodes), v.dtype) for k, v in like_m.items()}
+        step = ck.latest_step()
+        saved = ck.restore(step, {"agents": like_agents, "metrics": like_m,
+                                  "keys": keys, "episode": np.int64(0)})
+        if not np.array_equal(jax.random.key_data(saved["keys"]), jax.random.key_data(keys)):
+            raise CheckpointError(f"{ck.directory}: stored run keys differ from this run's")
+        start = (int(saved["episode"]), saved["agents"], saved["metrics"])
+        if progress:
+            progress(n * start[0])
+    done = [start[0] if start else 0]
+
+    def on_stop(episode, agents, metrics):
+        if ck is not None:
+            ck.save(episode, {"agents": agents, "metrics": metrics, "keys": keys,
+                              "episode": np.int64(episode)})
+        if progress:
+            progress(n * (episode - done[0]))
+        done[0] = episode
+
+    agents, metrics = al.train_in_chunks(cfg, keys, hp, stops, on_stop, start, sharding)
+    return metrics, agents
+
+
+def _run_tl(cfg: tl.TLConfig, keys, hp, sharding, ck, progress):
+    n = keys.shape[0]
+    train = jax.jit(jax.vmap(tl.make_train(cfg)))
+    if ck is not None and ck.latest_step() is not None:
+        like = jax.eval_shape(train, keys, hp)
+        params, metrics = ck.restore(ck.latest_step(), like)
+    else:
+        keys, hp = jax.device_put((keys, hp), sharding)
+        params, metrics = jax.block_until_ready(train(keys, hp))
+        if ck is not None:
+            ck.save(1, (params, metrics))
+    if progress:
+        progress(n * cfg.epochs)
+    return metrics, params
+
+
+# ---------------------------------------------------------------------------------- the sweep
+def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarray) -> dict:
+    """Per run value of the plotted metric, per point mean/std over the finite runs, and the
+    learning curves (AL)."""
+    n_pts = len(spec.points())
+    if spec.module == "al":
+        curve = metrics[spec.metric]  # [runs, episodes]
+        window = max(1, curve.shape[1] // 10)
+        value = curve[:, -window:].mean(1)
+    else:  # the final value after training
+        curve, value, window = None, metrics[f"final_{spec.metric}"], None
+    value = value.reshape(n_pts, spec.seeds)
+    ok = finite.reshape(n_pts, spec.seeds)
+    pts = []
+    for i, p in enumerate(spec.points()):
+        v = value[i][ok[i]]
+        pts.append({"point": {k: p[k] for k in spec.grid},
+                    "mean": float(v.mean()) if v.size else None,
+                    "std": float(v.std()) if v.size else None,
+                    "runs": [float(x) for x in value[i]],
+                    "diverged": [int(s) for s in np.flatnonzero(~ok[i])]})
+    out = {"metric": spec.metric, "window": window, "points": pts}
+    if curve is not None:
+        c = np.asarray(curve, np.float64).reshape(n_pts, spec.seeds, -1)
+        out["curves"] = [np.where(ok[i][:, None], c[i], np.nan).tolist() for i in range(n_pts)]
+    return out
+
+
+def _write_csv(path: pathlib.Path, spec: SweepSpec, summary: dict) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow([*spec.grid, "seed", spec.metric, "diverged"])
+    for p in summary["points"]:
+        for s, v in enumerate(p["runs"]):
+            w.writerow([*p["point"].values(), s, v, int(s in p["diverged"])])
+    atomic_write_text(path, buf.getvalue())
+
+
+def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
+    plt = pyplot()
+    curves = "curves" in summary
+    fig, axes = plt.subplots(1, 2 if curves else 1, figsize=(11 if curves else 5.5, 3.6))
+    axes = np.atleast_1d(axes)
+    label = METRICS[spec.module][spec.metric]
+    others = [k for k in spec.grid if k != spec.x]
+    xs = [p["point"][spec.x] for p in summary["points"]]
+    if curves:
+        ax = axes[0]
+        for p, c in zip(summary["points"], summary["curves"], strict=True):
+            c = np.asarray(c, float)
+            if np.isfinite(c).any():
+                mean = np.nanmean(c, 0)
+                k = max(1, mean.size // 25)  # bins of k episodes
+                bins = mean[: mean.size // k * k].reshape(-1, k).mean(1)
+                ax.plot(np.arange(bins.size) * k + k / 2, bins,
+                        label=", ".join(f"{key}={v}" for key, v in p["point"].items()))
+        ax.set(xlabel="episode", ylabel=label, title="learning curves (mean over seeds)")
+        ax.legend(fontsize=7)
+    ax = axes[-1]
+    groups: dict[tuple, list[dict]] = {}
+    for p in summary["points"]:
+        groups.setdefault(tuple(p["point"][k] for k in others), []).append(p)
+    for key, ps in groups.items():
+        ps = [p for p in ps if p["mean"] is not None]
+        ax.errorbar([p["point"][spec.x] for p in ps], [p["mean"] for p in ps],
+                    yerr=[p["std"] for p in ps], marker="o", capsize=3,
+                    label=", ".join(f"{k}={v}" for k, v in zip(others, key, strict=True))
+                    or None)
+    positive = all(isinstance(v, (int, float)) and v > 0 for v in xs)
+    if positive and max(xs) / min(xs) >= 100:
+        ax.set_xscale("log")
+    window = f" (last {summary['window']} episodes)" if summary.get("window") else " (final)"
+    ax.set(xlabel=spec.x, ylabel=label + window, title=f"{spec.seeds} seeds per point")
+    if others:
+        ax.legend(fontsize=7)
+    fig.suptitle(spec.title)
+    fig.tight_layout()
+    write_figure(out, spec.figure, {k: v for k, v in summary.items() if k != "curves"}, fig)
+
+
+def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: bool = False,
+        overwrite: bool = False, executor: str = "local", ray_address: str | None = None,
+        seed: int | None = None, show_progress: bool = True) -> dict:
+    """Run a sweep and write its results under ``out/<spec.name>``.
+
+    Args:
+        spec: a validated sweep (:func:`load_spec`).
+        out: parent folder of the sweep's folder.
+        resume: continue from the sweep's checkpoints (bit-identical to an uninterrupted run).
+        overwrite: delete the sweep's earlier checkpoints first (else they stop the run
+            unless ``resume``).
+        executor: ``"local"`` (this process, batch sharded over local devices) or ``"ray"``
+            (one Ray task per static group).
+        ray_address: Ray cluster address (None: the running one, else a local cluster).
+        seed: overrides ``spec.seed``.
+        show_progress: draw a tqdm progress bar.
+
+    Returns:
+        The summary written to ``sweep.json``.
+    """
+    if executor not in EXECUTORS:
+        raise SweepError(f"executor: unknown value {executor!r}; accepted values: {EXECUTORS}")
+    if resume and overwrite:
+        raise SweepError("resume and overwrite: choose one")
+    if seed is not None:
+        spec = dataclasses.replace(spec, seed=seed)
+    folder = pathlib.Path(out) / spec.name
+    if overwrite and (folder / "checkpoints").exists():
+        shutil.rmtree(folder / "checkpoints")
+    folder.mkdir(parents=True, exist_ok=True)
+    n_pts = len(spec.points())
+    run_keys = np.asarray(jax.random.key_data(
+        jax.random.split(jax.random.key(spec.seed), n_pts * spec.seeds)))  # the one split
+    groups = spec.groups()
+    per_run = (lambda s: s["phase1_episodes"] + s["phase2_episodes"]) if spec.module == "al" \
+        else (lambda s: s["epochs"])
+    total = sum(len(idx) * spec.seeds * per_run(s) for s, idx in groups)
+    t0 = time.perf_counter()
+    from tqdm.auto import tqdm
+
+    unit = "ep" if spec.module == "al" else "epoch"
+    with tqdm(total=total, unit=unit, desc=spec.name, disable=not show_progress,
+              dynamic_ncols=True, smoothing=0.1) as bar:
+        if executor == "ray":
+            results = _run_ray(spec, groups, run_keys, folder, resume, ray_address, bar, per_run)
+        else:
+            results = [run_group(spec, g, run_keys, folder, resume, bar.update)
+                       for g in range(len(groups))]
+    names = results[0]["metrics"].keys()
+    metrics = {k: np.zeros((n_pts * spec.seeds,) + results[0]["metrics"][k].shape[1:],
+                           results[0]["metrics"][k].dtype) for k in names}
+    finite = np.zeros(n_pts * spec.seeds, bool)
+    for r in results:
+        for k in names:
+            metrics[k][r["rows"]] = r["metrics"][k]
+        finite[r["rows"]] = r["finite"]
+    summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
+               "groups": [{"static": s, "points": idx} for s, idx in groups],
+               "executor": executor, "devices": jax.local_device_count(),
+               "wall_s": time.perf_counter() - t0,
+               "diverged_runs": int((~finite).sum()), **_summaries(spec, metrics, finite)}
+    _write_csv(folder / "runs.csv", spec, summary)
+    _figure(spec, summary, folder)
+    atomic_write_text(folder / "sweep.json", json.dumps(summary, indent=1) + "\n")
+    np.savez(folder / ".metrics.tmp.npz", finite=finite, **metrics)
+    (folder / ".metrics.tmp.npz").replace(folder / "metrics.npz")
+    return summary
+
+
+def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> list[dict]:
+    try:
+        import ray
+    except ImportError:
+        raise SweepError("executor: 'ray' needs Ray: pip install 'grounding-jax[ray]'") from None
+    if not ray.is_initialized():
+        ray.init(address=address)
+    task = ray.remote(_ray_task)
+    pending = {task.remote(spec, g, run_keys, str(folder), resume): g
+               for g in range(len(groups))}
+    results = []
+    while pending:
+        ready, _ = ray.wait(list(pending), num_returns=1)
+        g = pending.pop(ready[0])
+        results.append(ray.get(ready[0]))
+        s, idx = groups[g]
+        bar.update(len(idx) * spec.seeds * per_run(s))
+    return results
+
+
+def _ray_task(spec: SweepSpec, group: int, run_keys: np.ndarray, folder: str,
+              resume: bool) -> dict:
+    """A Ray worker's share: one static group (checkpoints in the shared output folder)."""
+    return jax.device_get(run_group(spec, group, run_keys, pathlib.Path(folder), resume))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m grounding_jax.sweep",
+                                 description="Run a hyperparameter sweep from a TOML file.")
+    ap.add_argument("file", help="sweep file, e.g. sweeps/fig8a_critic_lr.toml")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a key: seeds=2, critic_lr=0.01,0.1, phase2_episodes=100")
+    ap.add_argument("--out", default="results/sweeps", help="parent output folder")
+    ap.add_argument("--seed", type=int, default=None, help="overrides the file's seed")
+    ap.add_argument("--resume", action="store_true", help="continue from the checkpoints")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="delete the sweep's earlier checkpoints and start over")
+    ap.add_argument("--executor", default="local", help=f"one of {EXECUTORS}")
+    ap.add_argument("--ray-address", default=None,
+                    help="Ray cluster address, e.g. ray://head:10001 (default: local cluster)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = ap.parse_args(argv)
+    try:
+        if args.executor not in EXECUTORS:
+            raise SweepError(f"--executor: unknown value {args.executor!r}; accepted values: "
+                             f"{EXECUTORS}")
+        spec = load_spec(args.file, args.set)
+        summary = run(spec, args.out, resume=args.resume, overwrite=args.overwrite,
+                      executor=args.executor, ray_address=args.ray_address, seed=args.seed,
+                      show_progress=not args.no_progress)
+    except (SweepError, CheckpointError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    folder = pathlib.Path(args.out) / spec.name
+    for p in summary["points"]:
+        mean = "diverged" if p["mean"] is None else f"{p['mean']:.4g} ± {p['std']:.2g}"
+        flag = f"  ({len(p['diverged'])} diverged)" if p["diverged"] else ""
+        print(f"{p['point']}: {spec.metric} {mean}{flag}")
+    print(f"wrote {folder}/ (sweep.json, runs.csv, {spec.figure}.png) in "
+          f"{summary['wall_s']:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,323 @@
+"""Sweep runner: grid expansion, grouping, validation, sharding, Ray, resume, divergence."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from grounding_jax import al, sweep, tl
+from grounding_jax.checkpoint import CheckpointError
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SWEEPS = sorted((ROOT / "sweeps").glob("*.toml"))
+
+#: a tiny AL sweep: 4-unit networks, 10-step episodes
+TINY_AL = {"module": "al", "seeds": 2, "chunk": 2, "metric": "td_error",
+           "params": {"phase1_episodes": 2, "phase2_episodes": 2, "actor_hidden": 4,
+                      "critic_hidden": 4, "episode_length": 10},
+           "grid": {"critic_lr": [0.01, 0.02]}}
+#: a tiny TL sweep: 2 hidden sizes x 2 replications x 2 learning rates, 2 epochs
+TINY_TL = {"module": "tl", "seeds": 2, "metric": "test_acc",
+           "params": {"epochs": 2, "eval_every": 1},
+           "grid": {"hidden": [3, 4], "replication": [1, 2], "lr": [0.1, 0.2]}}
+
+
+def _spec(base: dict, **changes) -> sweep.SweepSpec:
+    data = {**base, "params": dict(base["params"]), "grid": dict(base["grid"])}
+    if "grid" in changes:  # a new grid; its fields leave [params]
+        data["grid"] = changes.pop("grid")
+        data["params"] = {k: v for k, v in data["params"].items() if k not in data["grid"]}
+    for k, v in changes.items():
+        if k in sweep.TOP_KEYS:
+            data[k] = v
+        else:
+            data["grid" if k in data["grid"] else "params"][k] = v
+    return sweep.parse_spec(data)
+
+
+def _metrics(folder: pathlib.Path) -> dict[str, np.ndarray]:
+    with np.load(folder / "metrics.npz") as f:
+        return {k: f[k] for k in f.files}
+
+
+def _assert_same(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def _tree_hash(folder: pathlib.Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        h.update(str(p.relative_to(folder)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+# ------------------------------------------------------------------------- expansion, grouping
+def test_grid_expands_to_every_combination_and_groups_by_static_fields():
+    spec = _spec(TINY_TL)
+    pts = spec.points()
+    assert len(pts) == 8
+    assert {(p["hidden"], p["replication"], p["lr"]) for p in pts} == {
+        (h, n, lr) for h in (3, 4) for n in (1, 2) for lr in (0.1, 0.2)}
+    assert all(p["epochs"] == 2 and p["noise"] == 0.0 for p in pts)  # params + defaults
+    groups = spec.groups()
+    assert [g[0]["hidden"] for g in groups] == [3, 4]  # hidden is static; n and lr traced
+    assert sorted(i for _, idx in groups for i in idx) == list(range(8))
+    al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5, 7]})
+    assert len(al_spec.points()) == 6 and len(al_spec.groups()) == 3
+
+
+@pytest.fixture
+def trace_counter(monkeypatch):
+    """Counts how often each module's training function is traced (= compiled)."""
+    counts = {"al": 0, "tl": 0}
+    make_episodes, make_train = al.make_episodes, tl.make_train
+
+    def counted_episodes(config):
+        run = make_episodes(config)
+
+        def traced(*args):
+            counts["al"] += 1
+            return run(*args)
+
+        return traced
+
+    def counted_train(config, data=None):
+        train = make_train(config, data)
+
+        def traced(*args):
+            counts["tl"] += 1
+            return train(*args)
+
+        return traced
+
+    monkeypatch.setattr(al, "make_episodes", counted_episodes)
+    monkeypatch.setattr(tl, "make_train", counted_train)
+    return counts
+
+
+def test_one_compile_per_static_group(tmp_path, trace_counter):
+    s = sweep.run(_spec(TINY_TL, name="tl"), tmp_path, show_progress=False)
+    assert trace_counter["tl"] == 2  # 8 points, 2 hidden sizes
+    assert len(s["points"]) == 8 and all(len(p["runs"]) == 2 for p in s["points"])
+    spec = _spec(TINY_AL, name="al", figure="figx",
+                 grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5]})
+    s = sweep.run(spec, tmp_path, show_progress=False)
+    assert trace_counter["al"] == 2  # 4 points, 2 critic sizes; 2 chunks of the same shape
+    assert len(s["groups"]) == 2
+    for f in ("sweep.json", "runs.csv", "figx.png", "figx.json", "metrics.npz"):
+        assert (tmp_path / "al" / f).is_file(), f
+
+
+def test_chunks_have_one_shape_when_possible():
+    assert sweep.chunk_stops(500, 50) == list(range(50, 501, 50))
+    assert sweep.chunk_stops(200, 60) == [50, 100, 150, 200]  # largest divisor <= 60
+    assert sweep.chunk_stops(101, 50) == [50, 100, 101]  # prime: a short last chunk
+
+
+# --------------------------------------------------------------------------------- validation
+@pytest.mark.parametrize("path", SWEEPS, ids=[p.stem for p in SWEEPS])
+def test_every_sweep_file_validates(path):
+    spec = sweep.load_spec(path)
+    assert spec.seeds >= 5
+    assert spec.figure.startswith("fig")
+    assert len(spec.points()) >= 5
+
+
+def test_the_six_paper_sweeps_are_there():
+    assert {p.stem for p in SWEEPS} == {"fig6_tl_hidden", "fig7_tl_replication",
+                                        "fig8a_critic_lr", "fig8b_critic_hidden",
+                                        "fig9a_actor_lr", "fig9b_actor_hidden"}
+
+
+BAD = [
+    ('module = "al"\nbogus = 1\n[grid]\ncritic_lr = [0.1]', "bogus"),
+    ('module = "al"\n[grid]\ncritic_lr = ["fast"]', "grid.critic_lr"),
+    ('module = "al"\nseeds = "five"\n[grid]\ncritic_lr = [0.1]', "seeds"),
+    ('module = "al"\n[grid]\ncritic_lr = []', "grid.critic_lr"),
+    ('module = "al"\n[grid]', "grid"),
+    ('module = "al"\n[grid]\nactor_lr = [0.01, -0.001]', "grid.actor_lr"),
+    ('module = "al"\n[params]\ncritic_lr = -1.0\n[grid]\nsigma = [0.1]', "params.critic_lr"),
+    ('module = "al"\n[grid]\ncritic_hidden = [0, 20]', "grid.critic_hidden"),
+    ('module = "tl"\n[grid]\nhidden = [0]', "grid.hidden"),
+    ('module = "al"\n[params]\nlr = 0.1\n[grid]\nsigma = [0.1]', "params.lr"),
+    ('module = "esn"\n[grid]\nn_res = [50]', "module"),
+    ('[grid]\ncritic_lr = [0.1]', "module"),
+    ('module = "al"\nmetric = "accuracy"\n[grid]\ncritic_lr = [0.1]', "metric"),
+    ('module = "al"\n[params]\nbackend = "bullet"\n[grid]\ncritic_lr = [0.1]',
+     "params.backend"),
+    ('module = "al"\n[params]\nphase1_episodes = 0\nphase2_episodes = 0\n[grid]\n'
+     'critic_lr = [0.1]', "phase1_episodes"),
+    ('module = "al"\n[grid]\ncritic_lr = [0.1, 0.1]', "grid.critic_lr"),
+    ('module = "al"\n[grid\n', "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize("text,key", BAD, ids=[k for _, k in BAD])
+def test_bad_sweep_files_name_the_key_and_file_before_compiling(tmp_path, text, key,
+                                                                trace_counter):
+    path = tmp_path / "bad.toml"
+    path.write_text(text + "\n")
+    with pytest.raises(sweep.SweepError) as e:
+        sweep.load_spec(path)
+    assert key in str(e.value) and str(path) in str(e.value)
+    assert trace_counter == {"al": 0, "tl": 0}
+    # the command line says the same and exits 2 without writing anything
+    assert sweep.main([str(path), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
+def test_overrides_replace_grid_lists_and_params(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('module = "al"\nseeds = 5\n[grid]\ncritic_lr = [0.1, 0.2]\n')
+    spec = sweep.load_spec(path, ["critic_lr=0.01,0.03,0.1", "seeds=2", "sigma=0.3",
+                                  "backend=mjx"])
+    assert spec.grid["critic_lr"] == [0.01, 0.03, 0.1]
+    assert spec.seeds == 2 and spec.params["sigma"] == 0.3 and spec.params["backend"] == "mjx"
+    with pytest.raises(sweep.SweepError, match="params.sigma"):
+        sweep.load_spec(path, ["sigma=-1"])
+    with pytest.raises(sweep.SweepError, match="executor"):
+        sweep.run(spec, tmp_path, executor="slurm")
+
+
+# ------------------------------------------------------------------------- divergence, devices
+def test_a_diverging_point_is_flagged_and_the_others_are_unchanged(tmp_path):
+    good = sweep.run(_spec(TINY_AL, name="good"), tmp_path, show_progress=False)
+    bad = sweep.run(_spec(TINY_AL, name="bad", critic_lr=[0.01, 1e9]), tmp_path,
+                    show_progress=False)
+    assert bad["diverged_runs"] == 2 and good["diverged_runs"] == 0
+    assert bad["points"][1]["diverged"] == [0, 1] and bad["points"][1]["mean"] is None
+    assert bad["points"][0] == good["points"][0]  # same keys, same results, bit for bit
+    m_good, m_bad = _metrics(tmp_path / "good"), _metrics(tmp_path / "bad")
+    for k in m_good:
+        if k != "finite":
+            np.testing.assert_array_equal(m_bad[k][:2], m_good[k][:2], err_msg=k)
+    assert not m_bad["finite"][2:].any()
+    csv = (tmp_path / "bad" / "runs.csv").read_text().splitlines()
+    assert csv[0] == "critic_lr,seed,td_error,diverged" and csv[-1].endswith(",1")
+
+
+SUBPROCESS_SWEEP = textwrap.dedent("""
+    import json, sys
+    from grounding_jax import sweep
+    spec = sweep.parse_spec(json.loads(sys.argv[1]))
+    sweep.run(spec, sys.argv[2], resume=len(sys.argv) > 3, show_progress=False)
+""")
+
+
+def _sweep_process(spec: dict, out: pathlib.Path, *extra: str, env: dict | None = None,
+                   wait: bool = True):
+    import json
+
+    cmd = [sys.executable, "-c", SUBPROCESS_SWEEP, json.dumps(spec), str(out), *extra]
+    env = {**os.environ, "GROUNDING_JAX_THREADS": "2", **(env or {})}
+    if not wait:
+        return subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE)
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+
+
+def test_two_forced_host_devices_give_the_same_results(tmp_path):
+    spec = {**TINY_AL, "seeds": 3}  # 6 runs, and 2 groups -> padding is exercised too
+    spec = {**spec, "grid": {"critic_lr": [0.01], "critic_hidden": [3, 4]},
+            "params": {k: v for k, v in spec["params"].items() if k != "critic_hidden"}}
+    _sweep_process(spec, tmp_path / "one")
+    _sweep_process(spec, tmp_path / "two",
+                   env={"XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
+    one, two = (tmp_path / d / "sweep" for d in ("one", "two"))
+    import json
+
+    assert json.loads((two / "sweep.json").read_text())["devices"] == 2
+    assert json.loads((one / "sweep.json").read_text())["devices"] == 1
+    _assert_same(_metrics(one), _metrics(two))
+
+
+def test_ray_executor_on_a_local_cluster_matches_local(tmp_path):
+    ray = pytest.importorskip("ray")
+    spec = _spec(TINY_TL)
+    sweep.run(spec, tmp_path / "local", show_progress=False)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        s = sweep.run(spec, tmp_path / "ray", executor="ray", show_progress=False)
+    finally:
+        ray.shutdown()
+    assert s["executor"] == "ray"
+    _assert_same(_metrics(tmp_path / "local" / "sweep"), _metrics(tmp_path / "ray" / "sweep"))
+
+
+# ------------------------------------------------------------------------------- checkpoints
+def _steps(folder: pathlib.Path) -> list[int]:
+    """Complete checkpoint steps (orbax writes into a temporary folder, then renames)."""
+    return [int(p.name) for p in folder.iterdir() if p.name.isdigit()] if folder.exists() else []
+
+
+def test_sigkill_mid_sweep_then_resume_matches_an_uninterrupted_run(tmp_path):
+    spec = {**TINY_AL, "chunk": 1, "grid": {"critic_lr": [0.01]},
+            "params": {**TINY_AL["params"], "phase2_episodes": 60}}
+    _sweep_process(spec, tmp_path / "whole")
+    proc = _sweep_process(spec, tmp_path / "cut", wait=False)
+    steps = tmp_path / "cut" / "sweep" / "checkpoints" / "group0" / "steps"
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        done = _steps(steps)
+        if done and max(done) >= 3:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, "the sweep ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed_at = max(_steps(steps))
+    assert 3 <= killed_at < 62 and not (tmp_path / "cut" / "sweep" / "sweep.json").exists()
+    _sweep_process(spec, tmp_path / "cut", "--resume")
+    _assert_same(_metrics(tmp_path / "whole" / "sweep"), _metrics(tmp_path / "cut" / "sweep"))
+
+
+def test_corrupt_or_mismatched_checkpoints_are_refused_and_kept(tmp_path):
+    spec = _spec(TINY_AL, grid={"critic_lr": [0.01]})
+    sweep.run(spec, tmp_path, show_progress=False)
+    folder = tmp_path / "sweep" / "checkpoints"
+    before = _tree_hash(folder)
+    with pytest.raises(CheckpointError, match="--resume"):  # no silent overwrite
+        sweep.run(spec, tmp_path, show_progress=False)
+    with pytest.raises(CheckpointError, match="sigma"):  # another config
+        sweep.run(_spec(TINY_AL, grid={"critic_lr": [0.01]}, sigma=0.2), tmp_path,
+                  resume=True, show_progress=False)
+    assert _tree_hash(folder) == before
+    # damage every data file of the newest checkpoint
+    newest = max((folder / "group0" / "steps").iterdir(), key=lambda p: int(p.name))
+    for f in newest.rglob("*"):
+        if f.is_file() and f.parent.name in ("d", "ocdbt.process_0"):
+            f.write_bytes(b"garbage")
+    damaged = _tree_hash(folder)
+    with pytest.raises(CheckpointError, match="cannot read"):
+        sweep.run(spec, tmp_path, resume=True, show_progress=False)
+    assert _tree_hash(folder) == damaged
+    (folder / "group0" / "config.json").write_text("{not json")
+    with pytest.raises(CheckpointError, match="corrupt"):
+        sweep.run(spec, tmp_path, resume=True, show_progress=False)
+    # --overwrite starts over
+    s = sweep.run(spec, tmp_path, overwrite=True, show_progress=False)
+    assert s["diverged_runs"] == 0
+
+
+def test_a_checkpoint_from_another_version_is_refused(tmp_path, monkeypatch):
+    spec = _spec(TINY_TL, grid={"hidden": [3]})
+    sweep.run(spec, tmp_path, show_progress=False)
+    import grounding_jax
+
+    monkeypatch.setattr(grounding_jax, "__version__", "9.9.9")
+    with pytest.raises(CheckpointError, match="9.9.9"):
+        sweep.run(spec, tmp_path, resume=True, show_progress=False)
