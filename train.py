@@ -1,14 +1,16 @@
 """Single-command reproduction of Farkaš, Malík & Rebrová (2012) -- thin CLI over the library.
 
-What runs today: the env check (scripted point and push episodes for every position, on the
-chosen physics backend), the target localizer (TL) experiments -- accuracy, Figs 6 and 7, the
-pixel-noise test -- the action learner (AL): success rates, Figs 10, 11, 13, 14 -- and the
-action namer (AN: ESN naming, Fig 15) with the SOM (Fig 12). The sweeps of Figs 8 and 9 and
-checkpoints are not built yet; the report says so.
+The whole pipeline: the env check (scripted point and push episodes for every position, on
+the chosen physics backend), the target localizer (TL) -- accuracy, Figs 6 and 7, the
+pixel-noise test -- the action learner's hyperparameter sweeps (Figs 8A, 8B, 9A, 9B, from
+``sweeps/*.toml``), the action learner (AL): success rates, Figs 10, 11, 13, 14 -- and the
+action namer (AN: ESN naming, Fig 15) with the SOM (Fig 12). The trained TL, AL agent and AN
+are saved to ``<out>/modules`` (load them with ``grounding_jax.load``).
 
     python train.py                      # quick profile (small grids, few seeds)
     python train.py --profile paper      # the paper's settings (600 epochs, 5 seeds, full grids)
     python train.py --set tl_epochs=50   # override one setting of the profile
+    python train.py --resume             # continue the sweeps of an interrupted run
 """
 
 from __future__ import annotations
@@ -21,14 +23,27 @@ import time
 
 PROFILES = {
     "quick": {"tl_epochs": 200, "tl_seeds": 3, "tl_hidden": [5, 20, 50],
-              "tl_replication": [1, 5, 20],
+              "tl_replication": [1, 5, 20], "sweep_seeds": 2,
               "al_seeds": 3, "al_phase1": 150, "al_phase2": 300, "al_no_tricks": 300,
               "an_seeds": 3, "an_tl_epochs": 200},
+    # the TL grids are those of sweeps/fig6_tl_hidden.toml and sweeps/fig7_tl_replication.toml
     "paper": {"tl_epochs": 600, "tl_seeds": 5, "tl_hidden": [5, 10, 20, 30, 40, 50, 75, 100],
-              "tl_replication": [1, 2, 5, 10, 15, 20, 25, 30],
+              "tl_replication": [1, 2, 5, 10, 15, 20, 25, 30], "sweep_seeds": 5,
               # the paper's schedule is 150 + 300 episodes: success is measured there too
               "al_seeds": 5, "al_phase1": 150, "al_phase2": 2850, "al_no_tricks": 2000,
               "an_seeds": 5, "an_tl_epochs": 600},
+}
+SWEEP_DIR = pathlib.Path(__file__).resolve().parent / "sweeps"
+#: the AL sweeps train.py runs (Figs 8, 9), with each profile's changes to the files
+AL_SWEEPS = {
+    "fig8a_critic_lr": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+                                  "critic_lr=0.001,0.01,0.1"]},
+    "fig8b_critic_hidden": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+                                      "critic_hidden=5,20"]},
+    "fig9a_actor_lr": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+                                 "actor_lr=0.0001,0.001,0.01"]},
+    "fig9b_actor_hidden": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+                                     "actor_hidden=10,40"]},
 }
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks"}
@@ -61,6 +76,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--backend", default="mujoco", help="physics backend: mujoco or mjx")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="output folder (default results/<profile>)")
+    ap.add_argument("--resume", action="store_true",
+                    help="continue the sweeps of an interrupted run in --out from their "
+                         "checkpoints (else they start over)")
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite REPORT.md from the metrics.json already in --out; run nothing")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -77,7 +95,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
     if args.backend not in BACKENDS:
         ap.error(f"--backend: unknown value {args.backend!r}; accepted values: {BACKENDS}")
+    from grounding_jax.sweep import SweepError
+
+    try:  # every sweep file is checked before anything runs
+        args.sweeps = sweep_specs(args.profile, args.settings, args.backend)
+    except SweepError as e:
+        ap.error(str(e))
     return args
+
+
+def sweep_specs(profile: str, settings: dict, backend: str) -> dict:
+    """The AL sweeps (Figs 8, 9) as validated specs, with the profile's changes."""
+    from grounding_jax import sweep
+
+    return {name: sweep.load_spec(SWEEP_DIR / f"{name}.toml",
+                                  [*changes.get(profile, []),
+                                   f"seeds={settings['sweep_seeds']}",
+                                   f'backend="{backend}"'])
+            for name, changes in AL_SWEEPS.items()}
 
 
 def env_check(key, backend: str) -> list[dict]:
@@ -151,16 +186,40 @@ def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> tuple[dict
     return res, agents
 
 
-def an_experiments(key, out: pathlib.Path, st: dict, backend: str, agents) -> dict:
-    """The AN results (ESN naming, Fig 15) and the SOM (Fig 12), from AL agent 0."""
+def al_sweeps(key, out: pathlib.Path, specs: dict, resume: bool) -> dict:
+    """Figs 8A, 8B, 9A, 9B: the AL hyperparameter sweeps (``grounding_jax.sweep``)."""
     import jax
 
-    from grounding_jax import an
+    from grounding_jax import sweep
+
+    res = {}
+    for (name, spec), k in zip(specs.items(), jax.random.split(key, len(specs)), strict=True):
+        s = sweep.run(spec, out, resume=resume, overwrite=not resume, key=k,
+                      show_progress=False)
+        res[name] = {k2: s[k2] for k2 in ("name", "spec", "metric", "window", "points",
+                                           "wall_s", "diverged_runs")}
+        best = max((p for p in s["points"] if p["mean"] is not None),
+                   key=lambda p: p["mean"] * (-1 if spec.metric == "td_error" else 1))
+        print(f"sweep {name}: best {best['point']} ({spec.metric} {best['mean']:.3g}), "
+              f"{s['wall_s']:.0f} s", flush=True)
+    return res
+
+
+def an_experiments(key, out: pathlib.Path, st: dict, backend: str, agents) -> dict:
+    """The AN results (ESN naming, Fig 15) and the SOM (Fig 12), from AL agent 0; the trained
+    TL, AL agent 0 and AN are saved to ``out/../modules``."""
+    import jax
+
+    from grounding_jax import an, cacla, esn, trained
     from grounding_jax.env import EnvConfig
 
     agent = jax.tree.map(lambda x: x[0], agents)
-    res = an.run(key, out, agent, seeds=st["an_seeds"], tl_epochs=st["an_tl_epochs"],
-                 env_config=EnvConfig(backend=backend))
+    env_config = EnvConfig(backend=backend)
+    res, modules = an.run(key, out, agent, seeds=st["an_seeds"], tl_epochs=st["an_tl_epochs"],
+                          env_config=env_config)
+    trained.save(out.parent / "modules", modules["tl_params"], modules["tl_hyper"], agent,
+                 cacla.CaclaConfig(), modules["net"], esn.ESNConfig(), env_config,
+                 extra={"tl_epochs": st["an_tl_epochs"], "al": "agent 0 of the AL results"})
     print(f"an    naming accuracy train {res['train']['acc_mean']:.3f} test "
           f"{res['test']['acc_mean']:.3f} (random starts {res['test_random']['acc_mean']:.3f});"
           f" SOM purity action {res['fig12']['purity_action']:.2f} position "
@@ -262,7 +321,61 @@ def _pct(v: float) -> str:
     return f"{100 * v:.1f}%"
 
 
-def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict) -> str:
+def metrics_csv(result: dict) -> str:
+    """Every number of metrics.json as ``key,value`` rows (dotted keys; lists by index)."""
+    rows = []
+
+    def walk(prefix: str, v) -> None:
+        if isinstance(v, dict):
+            for k, x in v.items():
+                walk(f"{prefix}.{k}" if prefix else str(k), x)
+        elif isinstance(v, list):
+            for i, x in enumerate(v):
+                walk(f"{prefix}.{i}", x)
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            rows.append(f"{prefix},{v!r}")
+
+    walk("", result)
+    return "key,value\n" + "\n".join(rows) + "\n"
+
+
+def _sweeps_report(sweeps: dict | None) -> list[str]:
+    if not sweeps:
+        return ["", "## Action learner sweeps (Figs 8, 9)", "", "Not in this metrics.json "
+                "(written before the sweeps were part of train.py)."]
+    titles = {"fig8a_critic_lr": "Fig 8A", "fig8b_critic_hidden": "Fig 8B",
+              "fig9a_actor_lr": "Fig 9A", "fig9b_actor_hidden": "Fig 9B"}
+    lines = ["", "## Action learner sweeps (Figs 8, 9)", "",
+             "From `sweeps/*.toml` (run one alone with `python -m grounding_jax.sweep FILE`). "
+             "The paper's settings elsewhere (actor lr 0.001, critic lr 0.01, sigma 0.1, "
+             "gamma 0, 40/20 hidden units), phase 1 for the first 150 episodes (50 in the quick "
+             "profile). Critic sweeps plot the critic's RMS TD error per episode (lower is "
+             "better), actor sweeps the reward at each training episode's last step (higher "
+             "is better); the value below is the mean over the last tenth of the episodes, "
+             "mean ± std over seeds. Diverged runs (non-finite) are counted and left out.", "",
+             "| figure | episodes | paper | ours: value per grid point | best (ours) |",
+             "|---|---|---|---|---|"]
+    for name, s in sweeps.items():
+        spec = s["spec"]
+        x = spec["x"]
+        lower = s["metric"] == "td_error"
+        ok = [p for p in s["points"] if p["mean"] is not None]
+        best = min(ok, key=lambda p: p["mean"]) if lower else max(ok, key=lambda p: p["mean"])
+        vals = "; ".join(f"{p['point'][x]}: " + ("diverged" if p["mean"] is None else
+                                                 f"{p['mean']:.3f} ± {p['std']:.3f}")
+                         for p in s["points"])
+        eps = spec["params"].get("phase1_episodes", 150) + spec["params"].get(
+            "phase2_episodes", 300)
+        div = f" ({s['diverged_runs']} runs diverged)" if s["diverged_runs"] else ""
+        lines.append(f"| {titles.get(name, name)}: {x} ({s['metric']}) | {eps} | "
+                     f"{spec['paper']} | {vals}{div} | {x} = {best['point'][x]} |")
+    lines += [""] + [f"![{titles.get(n, n)}](sweeps/{n}/{s['spec']['figure']}.png)"
+                     for n, s in sweeps.items()]
+    return lines
+
+
+def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict,
+           sweeps: dict | None = None) -> str:
     """REPORT.md: the paper's numbers beside ours, figures embedded."""
     a, n, nf = tl["accuracy"], tl["noise"], tl["noise_fresh"]
     f6 = {p["hidden"]: p for p in tl["fig6"]["points"]}
@@ -278,8 +391,10 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict)
         "| scene + env (issue 3) | done: scripted episodes below |",
         "| TL target localizer, Figs 6, 7, noise (issue 4) | done: below |",
         "| AL action learner, Figs 10, 11, 13, 14 (issue 5) | done: below (success goals "
-        "missed, see there); Figs 8, 9 (sweeps) come with the sweep runner (issue 7) |",
+        "missed, see there) |",
+        "| AL sweeps, Figs 8A, 8B, 9A, 9B (issue 7) | done: below |",
         "| AN action namer + SOM, Figs 12, 15 (issue 6) | done: below |",
+        "| trained modules | saved to `modules/`; `grounding_jax.load` (README) |",
         "", "## Target localizer", "",
         "| result | paper | ours |", "|---|---|---|",
         f"| test accuracy, H=50, n=20 | ~95% | {_pct(a['test_acc_mean'])}{sd(a)} |",
@@ -321,6 +436,7 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict)
         "with the train/test split (std over seeds above). With fixed noise the network "
         "memorizes each training pattern's flips and test accuracy falls below chance (the "
         "paper reports ~75%); with fresh flips at every presentation the noise regularizes.",
+        *_sweeps_report(sweeps),
         *_al_report(al),
         *_an_report(an),
         "", "## Scripted episodes (env check)", "",
@@ -352,11 +468,13 @@ def main(argv: list[str] | None = None) -> int:
         for k in ("profile", "backend", "seed"):
             setattr(args, k, data[k])
         atomic_write_text(out / "REPORT.md", report(args, data["scripted_episodes"], data["tl"],
-                                                    data["al"], data["an"], data["wall_s"]))
+                                                    data["al"], data["an"], data["wall_s"],
+                                                    data.get("sweeps")))
         print(f"rewrote {out / 'REPORT.md'} from {out / 'metrics.json'}")
         return 0
     out.mkdir(parents=True, exist_ok=True)
-    k_env, k_tl, k_al, k_an = jax.random.split(jax.random.key(args.seed), 4)  # the one split
+    # the one split
+    k_env, k_tl, k_sw, k_al, k_an = jax.random.split(jax.random.key(args.seed), 5)
     wall = {}
     t = time.perf_counter()
     env_rows = env_check(k_env, args.backend)
@@ -365,17 +483,22 @@ def main(argv: list[str] | None = None) -> int:
     tl = tl_experiments(k_tl, out / "tl", args.settings)
     wall["tl"] = time.perf_counter() - t
     t = time.perf_counter()
+    sweeps = al_sweeps(k_sw, out / "sweeps", args.sweeps, args.resume)
+    wall["al_sweeps"] = time.perf_counter() - t
+    t = time.perf_counter()
     al, agents = al_experiments(k_al, out / "al", args.settings, args.backend)
     wall["al"] = time.perf_counter() - t
     t = time.perf_counter()
     an = an_experiments(k_an, out / "an", args.settings, args.backend, agents)
     wall["an"] = time.perf_counter() - t
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
-              "settings": args.settings, "scripted_episodes": env_rows, "tl": tl, "al": al,
-              "an": an, "wall_s": wall, "version": gj.__version__}
+              "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
+              "sweeps": sweeps, "al": al, "an": an, "wall_s": wall,
+              "version": gj.__version__}
     atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
-    atomic_write_text(out / "REPORT.md", report(args, env_rows, tl, al, an, wall))
-    print(f"wrote {out / 'REPORT.md'} and {out / 'metrics.json'} "
+    atomic_write_text(out / "metrics.csv", metrics_csv(result))
+    atomic_write_text(out / "REPORT.md", report(args, env_rows, tl, al, an, wall, sweeps))
+    print(f"wrote {out / 'REPORT.md'}, {out / 'metrics.json'}, metrics.csv, modules/ "
           f"({sum(wall.values()):.1f} s)")
     return 0
 

@@ -39,6 +39,7 @@ from grounding_jax.env import (  # noqa: E402
     make_env,
     make_task,
 )
+from grounding_jax.trained import Robot, load  # noqa: E402
 
 __all__ = ["Env", "EnvConfig", "EnvParams", "State", "Task", "make_env", "make_task",
-           "COMPILATION_CACHE_DIR", "__version__"]
+           "Robot", "load", "COMPILATION_CACHE_DIR", "__version__"]

@@ -31,10 +31,14 @@ DEFAULT_ESN = esn.ESNConfig()
 DEFAULT_SOM = som.SOMConfig()
 
 
-def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
-              ) -> tuple[np.ndarray, float]:
-    """Train one TL (H=50, n=20) and return its hidden activations for the 216 configurations
-    ``[216, 50]`` and its test accuracy."""
+def train_tl(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
+             ) -> tuple[tl.TLParams, tl.TLHyper, np.ndarray, float]:
+    """Train one TL (H=50, n=20).
+
+    Returns:
+        (parameters, its hyperparameters, hidden activations for the 216 configurations
+        ``[216, 50]``, test accuracy).
+    """
     data = tl_data.load() if data is None else data
     cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20, eval_every=epochs,
                       pixel_budget=int(data.bitmaps.sum(1).max()))  # clean bitmaps: sparse rows
@@ -42,7 +46,15 @@ def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
     params, m = jax.jit(tl.make_train(cfg, data))(key, hp)
     x = tl.build_inputs(jnp.asarray(data.bitmaps), jnp.asarray(data.symbols), hp, cfg)
     _, hid_mask = tl.masks(hp, cfg)
-    return np.asarray(tl.apply(params, x, hid_mask)[0]), float(m["final_test_acc"])
+    return (params, hp, np.asarray(tl.apply(params, x, hid_mask)[0]),
+            float(m["final_test_acc"]))
+
+
+def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
+              ) -> tuple[np.ndarray, float]:
+    """Train one TL (H=50, n=20) and return its hidden activations for the 216 configurations
+    ``[216, 50]`` and its test accuracy."""
+    return train_tl(key, epochs, data)[2:]
 
 
 def actor_sequences(agent: cacla.Agent, key: jax.Array, tasks: Task, steps: int,
@@ -204,7 +216,7 @@ def fig12(key: jax.Array, home: dict, out: pathlib.Path, skip: int = 0, every: i
 
 
 def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, steps: int = 100,
-        env_config: EnvConfig = DEFAULT_ENV, start_noise: float = 0.5) -> dict:
+        env_config: EnvConfig = DEFAULT_ENV, start_noise: float = 0.5) -> tuple[dict, dict]:
     """The AN results: accuracy over ``seeds`` ESNs (train, test, test from random starts),
     the settling time, Fig 15 and the SOM (Fig 12). Writes JSON + PNG under ``out``.
 
@@ -217,10 +229,14 @@ def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, ste
         steps: steps per sequence (paper: 100).
         env_config: static env config.
         start_noise: half-width of the random arm starts of the random-start test.
+
+    Returns:
+        (results, the trained modules of seed 0: ``tl_params``, ``tl_hyper``, ``net``, the
+        ESN with its readout -- what :func:`grounding_jax.trained.save` stores).
     """
     out = pathlib.Path(out)
     k_tl, k_home, k_rand, k_esn, k_som = jax.random.split(key, 5)
-    tl_h, tl_acc = tl_hidden(k_tl, tl_epochs)
+    tl_params, tl_hyper, tl_h, tl_acc = train_tl(k_tl, tl_epochs)
     home = dataset(agent, tl_h, k_home, steps, 0.0, env_config)
     rand = dataset(agent, tl_h, k_rand, steps, start_noise, env_config)
     runs = [train_namer(k, home, rand) for k in jax.random.split(k_esn, seeds)]
@@ -235,4 +251,4 @@ def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, ste
     res["fig15"] = fig15(runs[0], home, rand, out)
     res["fig12"] = fig12(k_som, home, out)
     atomic_write_text(out / "an.json", json.dumps(res, indent=1) + "\n")
-    return res
+    return res, {"tl_params": tl_params, "tl_hyper": tl_hyper, "net": runs[0]["net"]}

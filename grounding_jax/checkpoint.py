@@ -129,9 +129,9 @@ class Checkpointer:
         try:
             tree = self.manager.restore(step, args=self._ocp.args.StandardRestore(abstract))
         except Exception as e:  # orbax/tensorstore raise many types for damaged files
-            raise CheckpointError(f"{where}: cannot read the checkpoint ({type(e).__name__}: "
-                                  f"{str(e)[:300]}); it is left as it is -- delete the folder "
-                                  "to start over") from e
+            raise CheckpointError(f"{where}: cannot read the checkpoint as this run expects it "
+                                  f"({type(e).__name__}: {str(e)[:300]}); its files are left "
+                                  "as they are") from e
         got = jax.tree.structure(tree)
         if got != jax.tree.structure(target):
             raise CheckpointError(f"{where}: stored tree {got} does not match the expected one")

@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import hashlib
 import io
 import itertools
 import json
@@ -401,7 +402,8 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
     if out is not None:
         ck = Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
                           {"spec": spec.to_json(), "group": group, "static": static,
-                           "rows": rows.tolist(), "devices": jax.local_device_count()})
+                           "rows": rows.tolist(), "devices": jax.local_device_count(),
+                           "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
         if ck.latest_step() is not None and not resume:
             raise CheckpointError(f"{ck.directory}: holds a checkpoint of an earlier run; "
                                   "pass --resume to continue it or --overwrite to start over")
@@ -530,7 +532,8 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
                 bins = mean[: mean.size // k * k].reshape(-1, k).mean(1)
                 ax.plot(np.arange(bins.size) * k + k / 2, bins,
                         label=", ".join(f"{key}={v}" for key, v in p["point"].items()))
-        ax.set(xlabel="episode", ylabel=label, title="learning curves (mean over seeds)")
+        ax.set(xlabel="episode", ylabel=spec.metric,
+               title=f"learning curves, mean over seeds\n({label})")
         ax.legend(fontsize=7)
     ax = axes[-1]
     groups: dict[tuple, list[dict]] = {}
@@ -545,8 +548,10 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
     positive = all(isinstance(v, (int, float)) and v > 0 for v in xs)
     if positive and max(xs) / min(xs) >= 100:
         ax.set_xscale("log")
-    window = f" (last {summary['window']} episodes)" if summary.get("window") else " (final)"
-    ax.set(xlabel=spec.x, ylabel=label + window, title=f"{spec.seeds} seeds per point")
+    window = (f"mean of the last {summary['window']} episodes" if summary.get("window")
+              else "after training")
+    ax.set(xlabel=spec.x, ylabel=spec.metric,
+           title=f"{label}, {window}\n(mean ± std over {spec.seeds} seeds)")
     if others:
         ax.legend(fontsize=7)
     fig.suptitle(spec.title)
@@ -556,7 +561,8 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
 
 def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: bool = False,
         overwrite: bool = False, executor: str = "local", ray_address: str | None = None,
-        seed: int | None = None, show_progress: bool = True) -> dict:
+        seed: int | None = None, show_progress: bool = True, key: jax.Array | None = None
+        ) -> dict:
     """Run a sweep and write its results under ``out/<spec.name>``.
 
     Args:
@@ -570,6 +576,8 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
         ray_address: Ray cluster address (None: the running one, else a local cluster).
         seed: overrides ``spec.seed``.
         show_progress: draw a tqdm progress bar.
+        key: the sweep's PRNG key (default ``jax.random.key(seed)``), e.g. one part of a
+            caller's split.
 
     Returns:
         The summary written to ``sweep.json``.
@@ -585,8 +593,9 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
         shutil.rmtree(folder / "checkpoints")
     folder.mkdir(parents=True, exist_ok=True)
     n_pts = len(spec.points())
+    key = jax.random.key(spec.seed) if key is None else key
     run_keys = np.asarray(jax.random.key_data(
-        jax.random.split(jax.random.key(spec.seed), n_pts * spec.seeds)))  # the one split
+        jax.random.split(key, n_pts * spec.seeds)))  # the one split
     groups = spec.groups()
     per_run = (lambda s: s["phase1_episodes"] + s["phase2_episodes"]) if spec.module == "al" \
         else (lambda s: s["epochs"])

@@ -1,0 +1,233 @@
+"""Trained modules, saved together and loaded ready to use: ``grounding_jax.load(path)``.
+
+``train.py`` saves the TL, one AL agent and one AN (ESN with its readout) to
+``results/<profile>/modules``. :func:`load` returns a :class:`Robot`::
+
+    robot = grounding_jax.load("results/paper/modules")
+    robot.tl.localize(layout=3, word="red")        # where the red object lies: 0 L, 1 M, 2 R
+    robot.al.act(obs)                              # the greedy actor's move for an observation
+    out = robot.perform("push", "red", layout=3)   # find it, do it, name it
+    out["named"]                                   # ("push", "red")
+
+A checkpoint is refused (:class:`CheckpointError`) when it was written by another package
+version, when its config is not one this version can build, or when its arrays do not match
+that config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import shutil
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from grounding_jax import al, cacla, esn, scene, tl, tl_data
+from grounding_jax.checkpoint import Checkpointer, CheckpointError, read_config
+from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, make_task
+
+KIND = "modules"
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainedTL:
+    """The target localizer: where does the named object lie?"""
+
+    params: tl.TLParams
+    hidden: int
+    replication: int
+
+    def _inputs(self, bitmap: jax.Array, symbols: jax.Array) -> tuple[jax.Array, jax.Array]:
+        cfg = tl.TLConfig(max_hidden=self.params.w1.shape[1],
+                          max_replication=(self.params.w1.shape[0] - tl.N_PIXELS)
+                          // tl.N_SYMBOLS)
+        hp = tl.TLHyper(hidden=self.hidden, replication=self.replication)
+        lead = jnp.shape(bitmap)[:-1]
+        x = tl.build_inputs(jnp.reshape(bitmap, (-1, tl.N_PIXELS)),
+                            jnp.reshape(symbols, (-1, tl.N_SYMBOLS)), hp, cfg)
+        return x.reshape(*lead, -1), tl.masks(hp, cfg)[1]
+
+    def hidden_layer(self, bitmap: jax.Array, symbols: jax.Array) -> jax.Array:
+        """Hidden activations ``[..., max_hidden]`` (units past ``hidden`` are 0), the AN's
+        "what" input."""
+        x, mask = self._inputs(bitmap, symbols)
+        return tl.apply(self.params, x, mask)[0]
+
+    def position(self, bitmap: jax.Array, symbols: jax.Array) -> jax.Array:
+        """Position index (0 left, 1 middle, 2 right) for bitmaps ``[..., 1200]`` and symbol
+        units ``[..., 15]`` (see :func:`tl_data.symbol_units`)."""
+        x, mask = self._inputs(bitmap, symbols)
+        return jnp.argmax(tl.apply(self.params, x, mask)[1], axis=-1)
+
+    def localize(self, layout: int, word: str) -> int:
+        """Position of the object ``word`` ("box", "red", ...) names in scene ``layout``, from
+        the layout's cached camera bitmap."""
+        bitmap, symbols = _configuration(layout, word)
+        return int(self.position(bitmap, symbols))
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainedAL:
+    """The action learner's actor (and critic)."""
+
+    agent: cacla.Agent
+    config: cacla.CaclaConfig
+
+    def act(self, obs: jax.Array) -> jax.Array:
+        """The greedy action (no exploration) for observations ``[..., 11]``."""
+        return cacla.actor_apply(self.agent.actor, obs)[1]
+
+    def hidden_layer(self, obs: jax.Array) -> jax.Array:
+        """The actor's hidden activations (the AN's "how" input)."""
+        return cacla.actor_apply(self.agent.actor, obs)[0]
+
+    def value(self, obs: jax.Array) -> jax.Array:
+        """The critic's value of an observation ``[11]``."""
+        return cacla.critic_apply(self.agent.critic, obs)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainedAN:
+    """The action namer: an ESN over [actor hidden, TL hidden] sequences."""
+
+    net: esn.ESN
+
+    def outputs(self, actor_hidden: jax.Array, tl_hidden: jax.Array) -> jax.Array:
+        """The 9 outputs at each step for a sequence ``[T, actor hidden]`` and the TL's
+        hidden layer ``[tl hidden]`` (held over the sequence); zero initial state."""
+        tl_part = jnp.broadcast_to(tl_hidden, actor_hidden.shape[:1] + tl_hidden.shape)
+        states = esn.run(self.net, jnp.concatenate([actor_hidden, tl_part], axis=1))
+        return esn.apply(self.net, states)
+
+    def name(self, actor_hidden: jax.Array, tl_hidden: jax.Array) -> tuple[str, str]:
+        """(action word, target word) at the sequence's last step."""
+        a, w = esn.decode(self.outputs(actor_hidden, tl_hidden)[-1])
+        return scene.ACTIONS[int(a)], tl_data.TARGET_WORDS[int(w)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Robot:
+    """The three trained modules together, as :func:`load` returns them."""
+
+    tl: TrainedTL
+    al: TrainedAL
+    an: TrainedAN
+    env_config: EnvConfig
+    config: dict[str, Any]
+
+    def perform(self, action: str, word: str, layout: int = 0, steps: int = 100,
+                key: jax.Array | None = None, params: EnvParams = DEFAULT_PARAMS) -> dict:
+        """Hear "<action> <word>" in scene ``layout``: the TL finds the object, the actor
+        does the action for ``steps`` steps, the AN names what was done.
+
+        Returns:
+            ``position`` (the TL's answer), ``true_position``, ``final_reward``,
+            ``trajectory`` (env states after each step) and ``named`` (action, target word).
+        """
+        position = self.tl.localize(layout, word)
+        task = make_task(action, position, layout)
+        evaluate = al.make_eval(self.env_config, steps)
+        key = jax.random.key(0) if key is None else key
+        _, traj, hidden = evaluate(self.al.agent, key, task, params)
+        tl_h = self.tl.hidden_layer(*_configuration(layout, word))
+        return {"position": scene.POSITIONS[position],
+                "true_position": scene.POSITIONS[tl_data.label_of(layout,
+                                                                  tl_data.word_index(word))],
+                "final_reward": float(traj.reward[-1]), "trajectory": traj,
+                "named": self.an.name(hidden, tl_h)}
+
+
+def _configuration(layout: int, word: str) -> tuple[jax.Array, jax.Array]:
+    if not 0 <= int(layout) < len(scene.LAYOUTS):
+        raise ValueError(f"layout: index {layout} out of range; accepted: 0..35")
+    return (jnp.asarray(tl_data.cached_bitmaps()[int(layout)], jnp.float32),
+            jnp.asarray(tl_data.symbol_units(int(layout), word)))
+
+
+def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, esn.ESNConfig,
+                                    EnvConfig]:
+    """The module configs a checkpoint's config.json describes (CheckpointError if not)."""
+    try:
+        t = config["tl"]
+        tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
+        tl_hp = tl.TLHyper(hidden=t["hidden"], replication=t["replication"])
+        tl.validate(tl_hp, tl_cfg)
+        return (tl_cfg, tl_hp, cacla.CaclaConfig(**config["al"]), esn.ESNConfig(**config["an"]),
+                EnvConfig(**config["env"]))
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"config.json: not a valid modules config ({type(e).__name__}: "
+                              f"{e})") from e
+
+
+def _like(config: dict):
+    tl_cfg, tl_hp, al_cfg, esn_cfg, _ = _configs(config)
+    k = jax.random.key(0)
+    return {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
+            "al": jax.eval_shape(lambda: cacla.init(k, al_cfg)),
+            "an": jax.eval_shape(lambda: esn.ESN(
+                w_in=jnp.zeros((esn_cfg.n_in, esn_cfg.n_res)),
+                w_res=jnp.zeros((esn_cfg.n_res, esn_cfg.n_res)),
+                w_out=jnp.zeros((esn_cfg.n_res, esn_cfg.n_out))))}
+
+
+def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLHyper,
+         agent: cacla.Agent, al_config: cacla.CaclaConfig, net: esn.ESN,
+         esn_config: esn.ESNConfig, env_config: EnvConfig, extra: dict | None = None) -> None:
+    """Save the three trained modules (replacing an earlier save there only once the new one
+    is complete).
+
+    Args:
+        directory: the folder to write.
+        tl_params, tl_hyper: the TL (``hidden``, ``replication`` as ints).
+        agent, al_config: one AL agent (unbatched).
+        net, esn_config: the AN with its fitted readout.
+        env_config: the env the agent was trained in.
+        extra: JSON-able notes kept in the config (e.g. the profile and seed).
+    """
+    directory = pathlib.Path(directory)
+    config = {
+        "tl": {"hidden": int(tl_hyper.hidden), "replication": int(tl_hyper.replication),
+               "max_hidden": int(tl_params.w1.shape[1]),
+               "max_replication": (int(tl_params.w1.shape[0]) - tl.N_PIXELS) // tl.N_SYMBOLS},
+        "al": dataclasses.asdict(al_config), "an": dataclasses.asdict(esn_config),
+        "env": dataclasses.asdict(env_config), "extra": extra or {}}
+    tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    ck = Checkpointer(tmp, KIND, config, max_to_keep=1)
+    ck.save(0, {"tl": tl_params, "al": agent, "an": net})
+    ck.close()
+    old = directory.with_name(f".{directory.name}.old-{os.getpid()}")
+    if directory.exists():
+        os.replace(directory, old)
+    os.replace(tmp, directory)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def load(directory: str | pathlib.Path) -> Robot:
+    """Load modules saved by :func:`save` (``train.py`` writes ``results/<profile>/modules``).
+
+    Raises:
+        CheckpointError: no checkpoint there, another package version, a config this version
+            cannot build, or arrays that do not match it.
+    """
+    directory = pathlib.Path(directory)
+    stored = read_config(directory)
+    if stored["kind"] != KIND:
+        raise CheckpointError(f"{directory}: holds a {stored['kind']!r} checkpoint, not "
+                              f"trained modules ({KIND!r})")
+    config = stored["config"]
+    tl_cfg, tl_hp, al_cfg, _, env_cfg = _configs(config)
+    ck = Checkpointer(directory, KIND, config)
+    step = ck.latest_step()
+    if step is None:
+        raise CheckpointError(f"{directory}: config.json but no complete checkpoint")
+    tree = ck.restore(step, _like(config))
+    ck.close()
+    return Robot(tl=TrainedTL(tree["tl"], int(tl_hp.hidden), int(tl_hp.replication)),
+                 al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"]),
+                 env_config=env_cfg, config=config)

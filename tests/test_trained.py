@@ -1,0 +1,86 @@
+"""Saving and loading the trained modules: round trip, and clear refusals."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grounding_jax as gj
+from grounding_jax import cacla, esn, tl, tl_data, trained
+from grounding_jax.checkpoint import CheckpointError
+from grounding_jax.env import EnvConfig
+
+
+@pytest.fixture(scope="module")
+def modules():
+    k1, k2, k3 = jax.random.split(jax.random.key(0), 3)
+    hp = tl.TLHyper(hidden=50, replication=20)
+    return {"tl_params": tl.init(k1, hp, tl.TLConfig()), "tl_hyper": hp,
+            "agent": cacla.init(k2), "net": esn.init(k3).replace(
+                w_out=jax.random.normal(k3, (50, 9)))}
+
+
+def _save(path, m, **kw):
+    trained.save(path, m["tl_params"], m["tl_hyper"], m["agent"], cacla.CaclaConfig(),
+                 m["net"], esn.ESNConfig(), EnvConfig(), **kw)
+
+
+def test_save_then_load_gives_the_same_modules(tmp_path, modules):
+    _save(tmp_path / "m", modules, extra={"note": "test"})
+    robot = gj.load(tmp_path / "m")
+    for a, b in zip(jax.tree.leaves((modules["tl_params"], modules["agent"], modules["net"])),
+                    jax.tree.leaves((robot.tl.params, robot.al.agent, robot.an.net)),
+                    strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert robot.config["extra"] == {"note": "test"}
+    # the loaded modules answer as the originals do
+    obs = jnp.linspace(-1, 1, 11)
+    np.testing.assert_array_equal(robot.al.act(obs),
+                                  cacla.actor_apply(modules["agent"].actor, obs)[1])
+    data = tl_data.load()
+    pos = robot.tl.position(jnp.asarray(data.bitmaps[:5]), jnp.asarray(data.symbols[:5]))
+    expect = [int(tl.localize(modules["tl_params"], jnp.asarray(data.bitmaps[i]),
+                              jnp.asarray(data.symbols[i]), 20, 50)) for i in range(5)]
+    assert pos.tolist() == expect
+    assert robot.tl.localize(0, "red") == expect[3]  # configuration 3 = layout 0, "red"
+    a, w = robot.an.name(jnp.zeros((5, 40)), jnp.zeros(50))
+    assert a in ("point", "touch", "push") and w in tl_data.TARGET_WORDS
+    # saving again replaces the folder whole
+    _save(tmp_path / "m", modules)
+    assert gj.load(tmp_path / "m").config["extra"] == {}
+    assert [p.name for p in tmp_path.iterdir()] == ["m"]
+
+
+def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
+    with pytest.raises(CheckpointError, match="no checkpoint config"):
+        gj.load(tmp_path / "missing")
+    _save(tmp_path / "m", modules)
+    cfg_path = tmp_path / "m" / "config.json"
+    original = cfg_path.read_text()
+    # another package version
+    monkeypatch.setattr(gj, "__version__", "0.0.1")
+    with pytest.raises(CheckpointError, match="0.0.1"):
+        gj.load(tmp_path / "m")
+    monkeypatch.undo()
+    # a config this version cannot build, and one whose arrays do not fit
+    cfg = json.loads(original)
+    cfg["config"]["al"]["actor_hiden"] = 40
+    cfg_path.write_text(json.dumps(cfg))
+    with pytest.raises(CheckpointError, match="actor_hiden"):
+        gj.load(tmp_path / "m")
+    cfg = json.loads(original)
+    cfg["config"]["al"]["actor_hidden"] = 30
+    cfg_path.write_text(json.dumps(cfg))
+    with pytest.raises(CheckpointError, match="not compatible with the stored shape"):
+        gj.load(tmp_path / "m")
+    # a damaged array file
+    cfg_path.write_text(original)
+    for f in (tmp_path / "m" / "steps").rglob("*"):
+        if f.is_file() and f.parent.name == "d":
+            f.write_bytes(b"\0" * 10)
+    with pytest.raises(CheckpointError, match="cannot read"):
+        gj.load(tmp_path / "m")
