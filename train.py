@@ -24,7 +24,8 @@ import time
 PROFILES = {
     "quick": {"tl_epochs": 200, "tl_seeds": 3, "tl_hidden": [5, 20, 50],
               "tl_replication": [1, 5, 20], "sweep_seeds": 2,
-              "al_seeds": 3, "al_phase1": 150, "al_phase2": 300, "al_no_tricks": 300,
+              # shorter than the paper's 150 + 300: the quick profile must stay under 3 min
+              "al_seeds": 3, "al_phase1": 150, "al_phase2": 150, "al_no_tricks": 200,
               "an_seeds": 3, "an_tl_epochs": 200},
     # the TL grids are those of sweeps/fig6_tl_hidden.toml and sweeps/fig7_tl_replication.toml
     "paper": {"tl_epochs": 600, "tl_seeds": 5, "tl_hidden": [5, 10, 20, 30, 40, 50, 75, 100],
@@ -36,13 +37,13 @@ PROFILES = {
 SWEEP_DIR = pathlib.Path(__file__).resolve().parent / "sweeps"
 #: the AL sweeps train.py runs (Figs 8, 9), with each profile's changes to the files
 AL_SWEEPS = {
-    "fig8a_critic_lr": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+    "fig8a_critic_lr": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
                                   "critic_lr=0.001,0.01,0.1"]},
-    "fig8b_critic_hidden": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+    "fig8b_critic_hidden": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
                                       "critic_hidden=5,20"]},
-    "fig9a_actor_lr": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+    "fig9a_actor_lr": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
                                  "actor_lr=0.0001,0.001,0.01"]},
-    "fig9b_actor_hidden": {"quick": ["phase1_episodes=50", "phase2_episodes=50",
+    "fig9b_actor_hidden": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
                                      "actor_hidden=10,40"]},
 }
 #: settings that may be 0 (an empty phase, no no-tricks run)
@@ -348,8 +349,9 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
     lines = ["", "## Action learner sweeps (Figs 8, 9)", "",
              "From `sweeps/*.toml` (run one alone with `python -m grounding_jax.sweep FILE`). "
              "The paper's settings elsewhere (actor lr 0.001, critic lr 0.01, sigma 0.1, "
-             "gamma 0, 40/20 hidden units), phase 1 for the first 150 episodes (50 in the quick "
-             "profile). Critic sweeps plot the critic's RMS TD error per episode (lower is "
+             f"gamma 0, 40/20 hidden units), phase 1 for the first "
+             f"{next(iter(sweeps.values()))['spec']['params'].get('phase1_episodes', 150)} "
+             "episodes. Critic sweeps plot the critic's RMS TD error per episode (lower is "
              "better), actor sweeps the reward at each training episode's last step (higher "
              "is better); the value below is the mean over the last tenth of the episodes, "
              "mean ± std over seeds. Diverged runs (non-finite) are counted and left out.", "",

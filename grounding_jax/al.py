@@ -9,6 +9,7 @@ episodes) and the no-tricks schedule (plain CACLA from the start, ~2000 episodes
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import jax
@@ -196,6 +197,16 @@ def make_train(config: ALConfig):
     return train
 
 
+@functools.lru_cache(maxsize=16)
+def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef):
+    """``jit(vmap(make_episodes(config)))``, kept per static config and batched-hp layout: a
+    later batch with the same config and shapes (another sweep, another chunk) reuses the
+    compiled code instead of compiling it again (host-callback code is not in JAX's persistent
+    cache)."""
+    axes = jax.tree.unflatten(hp_treedef, hp_axes)
+    return jax.jit(jax.vmap(make_episodes(config), in_axes=(0, 0, None, axes)))
+
+
 def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
                     on_stop=None, start: tuple | None = None, sharding=None):
     """Train a batch of agents (``keys`` [agents], ``hp`` batched or shared) in a host loop
@@ -221,8 +232,9 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
     if not stops or sorted(stops) != list(stops) or stops[-1] != config.episodes or stops[0] < 1:
         raise ValueError(f"stops: must be increasing, >= 1 and end at {config.episodes}, "
                          f"got {stops!r}")
-    hp_axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp)
-    run = jax.jit(jax.vmap(make_episodes(config), in_axes=(0, 0, None, hp_axes)))
+    axes, treedef = jax.tree.flatten(jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp),
+                                     is_leaf=lambda x: x is None)
+    run = _batched_episodes(config, tuple(axes), treedef)
     agents, ep_keys, plan = jax.vmap(lambda k: schedule(k, config))(keys)
     plan = jax.tree.map(lambda x: x[0], plan)  # the same for every agent
     done = 0

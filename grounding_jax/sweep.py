@@ -554,7 +554,10 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
            title=f"{label}, {window}\n(mean ± std over {spec.seeds} seeds)")
     if others:
         ax.legend(fontsize=7)
-    fig.suptitle(spec.title)
+    lengths = sorted({p["phase1_episodes"] + p["phase2_episodes"] if spec.module == "al"
+                      else p["epochs"] for p in spec.points()})
+    unit = "episodes" if spec.module == "al" else "epochs"
+    fig.suptitle(f"{spec.title} ({'/'.join(map(str, lengths))} {unit})")
     fig.tight_layout()
     write_figure(out, spec.figure, {k: v for k, v in summary.items() if k != "curves"}, fig)
 

@@ -105,7 +105,9 @@ def trace_counter(monkeypatch):
 
     monkeypatch.setattr(al, "make_episodes", counted_episodes)
     monkeypatch.setattr(tl, "make_train", counted_train)
-    return counts
+    al._batched_episodes.cache_clear()  # compiled runners of earlier tests would hide traces
+    yield counts
+    al._batched_episodes.cache_clear()
 
 
 def test_one_compile_per_static_group(tmp_path, trace_counter):
@@ -117,6 +119,10 @@ def test_one_compile_per_static_group(tmp_path, trace_counter):
     s = sweep.run(spec, tmp_path, show_progress=False)
     assert trace_counter["al"] == 2  # 4 points, 2 critic sizes; 2 chunks of the same shape
     assert len(s["groups"]) == 2
+    # the same static config and batch shape again (another sweep): no new compile
+    sweep.run(_spec(TINY_AL, name="al2", grid={"critic_lr": [0.03, 0.3], "critic_hidden": [3, 5]},
+                    sigma=0.2), tmp_path, show_progress=False)
+    assert trace_counter["al"] == 2
     for f in ("sweep.json", "runs.csv", "figx.png", "figx.json", "metrics.npz"):
         assert (tmp_path / "al" / f).is_file(), f
 

@@ -1,25 +1,32 @@
-"""train.py end to end (quick profile shrunk with --set, C backend) and its argument checks."""
+"""train.py end to end (the real quick profile, C backend), the README's examples, and its
+argument checks."""
 
 from __future__ import annotations
 
 import json
 import pathlib
+import re
 import sys
 
 import pytest
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 import train  # noqa: E402
 
-SMALL = ["--set", "tl_epochs=20", "--set", "tl_seeds=2", "--set", "tl_hidden=5,20",
-         "--set", "tl_replication=1,20", "--set", "al_seeds=2", "--set", "al_phase1=10",
-         "--set", "al_phase2=10", "--set", "al_no_tricks=40",
-         "--set", "an_seeds=2", "--set", "an_tl_epochs=20"]
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> pathlib.Path:
+    """``python train.py`` (quick profile) into <tmp>/results/quick, run once for the module."""
+    out = tmp_path_factory.mktemp("run") / "results" / "quick"
+    assert train.main(["--out", str(out)]) == 0
+    return out
 
 
-def test_train_writes_report_metrics_and_every_figure(tmp_path):
-    assert train.main(["--out", str(tmp_path), *SMALL]) == 0
+def test_quick_profile_writes_report_metrics_and_every_figure(quick):
+    tmp_path = quick
     data = json.loads((tmp_path / "metrics.json").read_text())
+    assert data["profile"] == "quick" and data["settings"] == train.PROFILES["quick"]
     rows = {(r["action"], r["position"]): r for r in data["scripted_episodes"]}
     assert len(rows) == 6
     for pos in ("left", "middle", "right"):
@@ -27,16 +34,28 @@ def test_train_writes_report_metrics_and_every_figure(tmp_path):
         assert rows["push", pos]["target_moved_m"] > 0.02
         assert rows["push", pos]["others_moved_m"] < 1e-3
     tl = data["tl"]
-    assert tl["accuracy"]["epochs"] == 20 and tl["accuracy"]["seeds"] == 2
-    assert [p["hidden"] for p in tl["fig6"]["points"]] == [5, 20]
-    assert 0.0 <= tl["accuracy"]["test_acc_mean"] <= 1.0
+    assert tl["accuracy"]["epochs"] == 200 and tl["accuracy"]["seeds"] == 3
+    assert [p["hidden"] for p in tl["fig6"]["points"]] == [5, 20, 50]
+    # 200 epochs of the quick profile already learn: far above chance (1/3)
+    assert tl["accuracy"]["train_acc_mean"] > 0.95 and tl["accuracy"]["test_acc_mean"] > 0.5
     report = (tmp_path / "REPORT.md").read_text()
     assert "| test accuracy, H=50, n=20 | ~95% |" in report and "| push | left |" in report
     for name in ("accuracy", "fig6", "fig7", "noise", "noise_fresh"):
         assert (tmp_path / "tl" / f"{name}.png").stat().st_size > 1000
         assert f"tl/{name}.png" in report
+    sweeps = data["sweeps"]
+    assert list(sweeps) == list(train.AL_SWEEPS)
+    for name, s in sweeps.items():
+        fig = s["spec"]["figure"]
+        assert (tmp_path / "sweeps" / name / f"{fig}.png").stat().st_size > 1000
+        assert f"sweeps/{name}/{fig}.png" in report
+        assert all(len(p["runs"]) == 2 for p in s["points"])  # sweep_seeds of the profile
+        assert s["diverged_runs"] == 0
+    assert [p["point"]["critic_lr"] for p in sweeps["fig8a_critic_lr"]["points"]] == [
+        0.001, 0.01, 0.1]
+    assert "| Fig 8A: critic_lr (td_error) |" in report
     al = data["al"]
-    assert al["seeds"] == 2 and set(al["success"]) == {"20"}
+    assert al["seeds"] == 3 and set(al["success"]) == {"300"}
     for rates in (al["final"]["home"]["by_action"], al["final"]["random_starts"]["by_action"]):
         assert set(rates) == {"point", "touch", "push"}
         assert all(0.0 <= v <= 1.0 for v in rates.values())
@@ -45,18 +64,43 @@ def test_train_writes_report_metrics_and_every_figure(tmp_path):
         assert (tmp_path / "al" / f"{name}.png").stat().st_size > 1000
         assert f"al/{name}.png" in report
     an = data["an"]
-    assert an["seeds"] == 2 and len(an["test"]["acc_per_seed"]) == 2
+    assert an["seeds"] == 3 and len(an["test"]["acc_per_seed"]) == 3
     assert all(0.0 <= an[k]["acc_mean"] <= 1.0 for k in ("train", "test", "test_random"))
+    assert an["train"]["acc_mean"] > 0.9  # the readout fits its training sequences
     assert "| train accuracy | > 99% |" in report
     for name in ("fig15", "fig12"):
         assert (tmp_path / "an" / f"{name}.png").stat().st_size > 1000
         assert f"an/{name}.png" in report
-    assert not list(tmp_path.rglob("*.tmp"))
+    assert not list(tmp_path.rglob("*.tmp")) and not list(tmp_path.glob(".modules*"))
+    csv = (tmp_path / "metrics.csv").read_text().splitlines()
+    assert csv[0] == "key,value" and any(r.startswith("an.train.acc_mean,") for r in csv)
     # the report can be rebuilt from metrics.json alone, identically
     (tmp_path / "REPORT.md").unlink()
     assert train.main(["--out", str(tmp_path), "--report-only"]) == 0
     assert (tmp_path / "REPORT.md").read_text() == report
     assert train.main(["--out", str(tmp_path / "nothing"), "--report-only"]) == 2
+
+
+def _readout_block(heading: str) -> str:
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index(heading):]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+def test_readme_example_loads_the_trained_robot_and_uses_it(quick, monkeypatch, capsys):
+    import grounding_jax as gj
+
+    code = _readout_block("## Using the trained robot")
+    assert 'gj.load("results/quick/modules")' in code
+    monkeypatch.chdir(quick.parent.parent)  # where results/quick/ is
+    exec(compile(code, "README.md", "exec"), {})
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] in ("0", "1", "2")
+    robot = gj.load(quick / "modules")
+    out = robot.perform("push", "red", layout=3)
+    assert lines[-1] == " ".join(str(out[k]) for k in ("position", "true_position",
+                                                         "final_reward", "named"))
+    assert out["named"][0] in ("point", "touch", "push")
 
 
 @pytest.mark.parametrize("argv, field", [
