@@ -346,6 +346,8 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
                 "(written before the sweeps were part of train.py)."]
     titles = {"fig8a_critic_lr": "Fig 8A", "fig8b_critic_hidden": "Fig 8B",
               "fig9a_actor_lr": "Fig 9A", "fig9b_actor_hidden": "Fig 9B"}
+    chosen = {"fig8a_critic_lr": 0.01, "fig8b_critic_hidden": 20, "fig9a_actor_lr": 0.001,
+              "fig9b_actor_hidden": 40}  # the values the paper went on with (Table 2)
     lines = ["", "## Action learner sweeps (Figs 8, 9)", "",
              "From `sweeps/*.toml` (run one alone with `python -m grounding_jax.sweep FILE`). "
              "The paper's settings elsewhere (actor lr 0.001, critic lr 0.01, sigma 0.1, "
@@ -355,8 +357,8 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
              "better), actor sweeps the reward at each training episode's last step (higher "
              "is better); the value below is the mean over the last tenth of the episodes, "
              "mean ± std over seeds. Diverged runs (non-finite) are counted and left out.", "",
-             "| figure | episodes | paper | ours: value per grid point | best (ours) |",
-             "|---|---|---|---|---|"]
+             "| figure | episodes | paper | ours: value per grid point | best (ours) | the "
+             "paper's choice, ranked among ours |", "|---|---|---|---|---|---|"]
     for name, s in sweeps.items():
         spec = s["spec"]
         x = spec["x"]
@@ -369,8 +371,12 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
         eps = spec["params"].get("phase1_episodes", 150) + spec["params"].get(
             "phase2_episodes", 300)
         div = f" ({s['diverged_runs']} runs diverged)" if s["diverged_runs"] else ""
+        ranked = sorted(ok, key=lambda p: p["mean"] * (1 if lower else -1))
+        pick = [i for i, p in enumerate(ranked) if p["point"][x] == chosen.get(name)]
+        rank = (f"{x} = {chosen[name]}: {pick[0] + 1} of {len(ranked)}" if pick else
+                "not in the grid")
         lines.append(f"| {titles.get(name, name)}: {x} ({s['metric']}) | {eps} | "
-                     f"{spec['paper']} | {vals}{div} | {x} = {best['point'][x]} |")
+                     f"{spec['paper']} | {vals}{div} | {x} = {best['point'][x]} | {rank} |")
     lines += [""] + [f"![{titles.get(n, n)}](sweeps/{n}/{s['spec']['figure']}.png)"
                      for n, s in sweeps.items()]
     return lines

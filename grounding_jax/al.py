@@ -79,6 +79,10 @@ class ALHyper:
     ``actor_lr_decay`` / ``critic_lr_decay`` / ``sigma_decay``: the value at episode ``e`` is
     ``v * decay ** (e / (episodes - 1))`` -- geometric from ``v`` at the first episode to
     ``v * decay`` at the last; 1.0 keeps it constant (the paper).
+
+    ``actor_units`` / ``critic_units``: hidden units in use, at most the config's sizes (0: all
+    of them); the rest stay at zero weights (:func:`cacla.init`), so a sweep over hidden sizes
+    runs as one batch at the largest size.
     """
 
     cacla: cacla.CaclaHyper = cacla.CaclaHyper()
@@ -86,6 +90,8 @@ class ALHyper:
     actor_lr_decay: Any = 1.0
     critic_lr_decay: Any = 1.0
     sigma_decay: Any = 1.0
+    actor_units: Any = 0
+    critic_units: Any = 0
 
 
 def validate(hp: ALHyper) -> ALHyper:
@@ -98,6 +104,12 @@ def validate(hp: ALHyper) -> ALHyper:
             arr = np.asarray(v, dtype=float)
             if not np.all(np.isfinite(arr)) or not np.all((arr > 0) & (arr <= 1)):
                 raise ValueError(f"{name}: must be in (0, 1], got {v!r}")
+    for name in ("actor_units", "critic_units"):
+        v = getattr(hp, name)
+        if not isinstance(v, jax.core.Tracer):
+            arr = np.asarray(v)
+            if not np.all(arr >= 0) or not np.all(arr == np.round(arr)):
+                raise ValueError(f"{name}: must be an integer >= 0 (0: all units), got {v!r}")
     return hp
 
 
@@ -164,15 +176,20 @@ def make_episodes(config: ALConfig):
     return run
 
 
-def schedule(key: jax.Array, config: ALConfig
+def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
              ) -> tuple[cacla.Agent, jax.Array, dict[str, jax.Array]]:
-    """The key split once: (initial agent, one key per episode, the per-episode plan:
-    ``phase1`` flags and ``progress`` 0 -> 1)."""
+    """The key split once: (initial agent -- with ``hp``'s hidden units in use --, one key per
+    episode, the per-episode plan: ``phase1`` flags and ``progress`` 0 -> 1)."""
     k_init, k_eps = jax.random.split(key)
     e = jnp.arange(config.episodes)
     plan = {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
             "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
-    return cacla.init(k_init, config.cacla), jax.random.split(k_eps, config.episodes), plan
+    hp = ALHyper() if hp is None else hp
+    c = config.cacla
+    agent = cacla.init(k_init, c,
+                       jnp.where(hp.actor_units > 0, hp.actor_units, c.actor_hidden),
+                       jnp.where(hp.critic_units > 0, hp.critic_units, c.critic_hidden))
+    return agent, jax.random.split(k_eps, config.episodes), plan
 
 
 def make_train(config: ALConfig):
@@ -191,7 +208,7 @@ def make_train(config: ALConfig):
     run = make_episodes(config)
 
     def train(key: jax.Array, hp: ALHyper) -> tuple[cacla.Agent, dict[str, jax.Array]]:
-        agent, keys, plan = schedule(key, config)
+        agent, keys, plan = schedule(key, config, hp)
         return run(agent, keys, plan, hp)
 
     return train
@@ -235,7 +252,9 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
     axes, treedef = jax.tree.flatten(jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp),
                                      is_leaf=lambda x: x is None)
     run = _batched_episodes(config, tuple(axes), treedef)
-    agents, ep_keys, plan = jax.vmap(lambda k: schedule(k, config))(keys)
+    hp_tree = jax.tree.unflatten(treedef, axes)
+    agents, ep_keys, plan = jax.vmap(lambda k, h: schedule(k, config, h),
+                                     in_axes=(0, hp_tree))(keys, hp)
     plan = jax.tree.map(lambda x: x[0], plan)  # the same for every agent
     done = 0
     metrics = None

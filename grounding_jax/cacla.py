@@ -11,8 +11,9 @@
   ``CaclaConfig.var``): the actor update is repeated ``ceil(delta / sqrt(var_delta))`` times
   (at most ``max_var_repeats``), with ``var_delta`` a running variance of delta.
 
-Hidden sizes are static (``CaclaConfig``); learning rates, sigma, gamma and the phase switch
-are traced (``CaclaHyper``).
+Network sizes are static (``CaclaConfig``); learning rates, sigma, gamma and the phase switch
+are traced (``CaclaHyper``). A smaller hidden layer can still be traced: :func:`init` leaves the
+units past ``*_units`` at zero weights, where they stay (see there).
 """
 
 from __future__ import annotations
@@ -126,26 +127,43 @@ class Transition:
     prev_reward: jax.Array
 
 
-def _mlp_init(key: jax.Array, n_in: int, n_hidden: int, n_out: int) -> MLP:
+def _mlp_init(key: jax.Array, n_in: int, n_hidden: int, n_out: int, units=None) -> MLP:
+    """Uniform weights in +-1/sqrt(fan-in), each hidden unit from its own ``fold_in`` of the
+    key (so a unit's weights do not depend on ``n_hidden``); units from ``units`` on (traced
+    or None: all) get zero weights in and out."""
     k1, k2 = jax.random.split(key)
-    w1 = jax.random.uniform(k1, (n_in, n_hidden), jnp.float32, -1, 1) / np.sqrt(n_in)
-    w2 = jax.random.uniform(k2, (n_hidden, n_out), jnp.float32, -1, 1) / np.sqrt(n_hidden)
-    return MLP(w1=w1, b1=jnp.zeros(n_hidden), w2=w2, b2=jnp.zeros(n_out))
+    j = jnp.arange(n_hidden)
+    w1 = jax.vmap(lambda i: jax.random.uniform(jax.random.fold_in(k1, i), (n_in,), jnp.float32,
+                                               -1, 1), out_axes=1)(j)
+    w2 = jax.vmap(lambda i: jax.random.uniform(jax.random.fold_in(k2, i), (n_out,),
+                                               jnp.float32, -1, 1))(j)
+    used = jnp.asarray(n_hidden if units is None else units, jnp.float32)
+    mask = (j < used).astype(jnp.float32)
+    return MLP(w1=w1 * mask / np.sqrt(n_in), b1=jnp.zeros(n_hidden),
+               w2=w2 * mask[:, None] / jnp.sqrt(used), b2=jnp.zeros(n_out))
 
 
-def init(key: jax.Array, config: CaclaConfig = CaclaConfig()) -> Agent:
+def init(key: jax.Array, config: CaclaConfig = CaclaConfig(), actor_units=None,
+         critic_units=None) -> Agent:
     """Fresh agent: uniform weights in +-1/sqrt(fan-in), zero biases.
+
+    A hidden unit whose weights in and out are all zero stays so under every update (tanh(0)
+    = 0, so it outputs 0 and all its gradients are 0): an agent built at the config's sizes
+    with fewer ``*_units`` in use computes exactly what the smaller network does. That makes
+    the hidden sizes traceable (a sweep over them needs one compile, at the largest size).
 
     Args:
         key: PRNG key.
-        config: static sizes.
+        config: static sizes (the padded sizes when ``*_units`` are given).
+        actor_units: actor hidden units in use (int, traced or None: ``config.actor_hidden``).
+        critic_units: critic hidden units in use (likewise).
 
     Returns:
         The agent state.
     """
     ka, kc = jax.random.split(key)
-    return Agent(actor=_mlp_init(ka, OBS_SIZE, config.actor_hidden, ACTION_SIZE),
-                 critic=_mlp_init(kc, OBS_SIZE, config.critic_hidden, 1),
+    return Agent(actor=_mlp_init(ka, OBS_SIZE, config.actor_hidden, ACTION_SIZE, actor_units),
+                 critic=_mlp_init(kc, OBS_SIZE, config.critic_hidden, 1, critic_units),
                  var_delta=jnp.ones((), jnp.float32))
 
 

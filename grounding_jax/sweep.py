@@ -17,11 +17,12 @@ A sweep file names a module (``"al"`` or ``"tl"``), a grid, the fixed values and
     critic_lr = [0.0001, 0.001, 0.01, 0.1]
 
 How it runs: every key and value is checked against the module's fields before anything is
-compiled. Points are grouped by their *static* fields (network sizes, episode counts, backend:
-one compile per group); within a group every point x seed is one row of a ``vmap``ped batch
-whose *traced* fields (learning rates, sigma, ...) are arrays, and the batch axis is sharded
-over all local devices. The run keys come from one ``jax.random.key(seed)`` split once into
-points x seeds, so a run's result does not depend on the grouping, the devices or the executor.
+compiled. Points are grouped by their *static* fields (TL hidden size, episode counts, backend:
+one compile per group; AL hidden sizes are traced, see FIELDS); within a group every point x
+seed is one row of a ``vmap``ped batch whose *traced* fields (learning rates, sigma, ...) are
+arrays, and the batch axis is sharded over all local devices. The run keys come from one
+``jax.random.key(seed)`` split once into points x seeds, so a run's result does not depend on
+the grouping, the devices or the executor.
 AL groups train in a host loop over chunks of episodes (progress bar, an orbax checkpoint after
 each chunk; ``--resume`` continues bit-identically); TL groups are checkpointed when done. Runs
 whose parameters or metrics are not finite are flagged ``diverged`` and left out of the means.
@@ -91,8 +92,11 @@ _EP, _TH, _TC = EnvParams(), tl.TLHyper(), tl.TLConfig()
 
 FIELDS: dict[str, dict[str, Field]] = {
     "al": {
-        "actor_hidden": Field("static", int, 40, *_int_at_least(1)),
-        "critic_hidden": Field("static", int, 20, *_int_at_least(1)),
+        # traced: the networks are built at the sweep's largest sizes with the unused units at
+        # zero weights, where they stay (cacla.init) -- one batch instead of one per size, which
+        # pays because an AL step's cost hardly grows with the batch (physics call overhead)
+        "actor_hidden": Field("traced", int, 40, *_int_at_least(1)),
+        "critic_hidden": Field("traced", int, 20, *_int_at_least(1)),
         "var": Field("static", bool, False),
         "phase1_episodes": Field("static", int, 150, *_int_at_least(0)),
         "phase2_episodes": Field("static", int, 300, *_int_at_least(0)),
@@ -310,15 +314,16 @@ def load_spec(path: str | pathlib.Path, overrides: Sequence[str] = ()) -> SweepS
 
 # ----------------------------------------------------------------------------- running groups
 def _module_config(spec: SweepSpec, static: dict[str, Any]):
+    pts = spec.points()
     if spec.module == "al":
         return al.ALConfig(
             env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
                           episode_length=static["episode_length"]),
-            cacla=cacla.CaclaConfig(actor_hidden=static["actor_hidden"],
-                                    critic_hidden=static["critic_hidden"], var=static["var"]),
+            cacla=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
+                                    critic_hidden=max(p["critic_hidden"] for p in pts),
+                                    var=static["var"]),
             phase1_episodes=static["phase1_episodes"],
             phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"])
-    pts = spec.points()
     clean = all(p["noise"] == 0 for p in pts)
     return tl.TLConfig(epochs=static["epochs"], eval_every=static["eval_every"],
                        noise_mode=static["noise_mode"], max_hidden=static["hidden"],
@@ -342,9 +347,11 @@ def _hyper(spec: SweepSpec, rows: list[dict]):
     env = EnvParams(**{k: _column(rows, k, f32) for k in
                        ("action_scale", "touch_other_penalty", "touch_target_penalty",
                         "start_noise")})
-    return al.ALHyper(cacla=ch, env=env, **{k: _column(rows, k, f32) for k in
-                                            ("actor_lr_decay", "critic_lr_decay",
-                                             "sigma_decay")})
+    return al.ALHyper(cacla=ch, env=env,
+                      actor_units=_column(rows, "actor_hidden", jnp.int32),
+                      critic_units=_column(rows, "critic_hidden", jnp.int32),
+                      **{k: _column(rows, k, f32) for k in
+                         ("actor_lr_decay", "critic_lr_decay", "sigma_decay")})
 
 
 def _batch_sharding(batch: int):
@@ -407,10 +414,14 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
         if ck.latest_step() is not None and not resume:
             raise CheckpointError(f"{ck.directory}: holds a checkpoint of an earlier run; "
                                   "pass --resume to continue it or --overwrite to start over")
+    report = None
+    if progress is not None:  # count the real runs, not the padding rows
+        def report(units: int) -> None:
+            progress(units * len(rows) // (len(rows) + pad))
     if spec.module == "al":
-        metrics, params = _run_al(cfg, keys, hp, spec.chunk, sharding, ck, progress)
+        metrics, params = _run_al(cfg, keys, hp, spec.chunk, sharding, ck, report)
     else:
-        metrics, params = _run_tl(cfg, keys, hp, sharding, ck, progress)
+        metrics, params = _run_tl(cfg, keys, hp, sharding, ck, report)
     metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
     finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
                            len(rows)) & _finite_rows(metrics, len(rows)))
@@ -433,7 +444,7 @@ def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress):
     n = keys.shape[0]
     if ck is not None and ck.latest_step() is not None:
         like_agents = jax.eval_shape(lambda k: jax.vmap(lambda kk: al.schedule(kk, cfg)[0])(k),
-                                     keys)
+                                     keys)  # shapes only: the units in use do not change them
         like_m = jax.eval_shape(lambda k: jax.vmap(al.make_train(
             dataclasses.replace(cfg, phase1_episodes=0, phase2_episodes=1)),
             in_axes=(0, None))(k, al.ALHyper())[1], keys)

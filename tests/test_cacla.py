@@ -136,3 +136,35 @@ def test_invalid_sizes_name_the_field():
         cacla.CaclaConfig(actor_hidden=0)
     with pytest.raises(ValueError, match="critic_hidden"):
         cacla.CaclaConfig(critic_hidden=-3)
+
+
+def test_unused_hidden_units_stay_zero_and_change_nothing():
+    """A 3/2-unit agent built at 8/6 units computes what the 3/2-unit agent computes."""
+    key = jax.random.key(3)
+    small = cacla.init(key, cacla.CaclaConfig(actor_hidden=3, critic_hidden=2))
+    big = cacla.init(key, cacla.CaclaConfig(actor_hidden=8, critic_hidden=6), actor_units=3,
+                     critic_units=jnp.asarray(2))  # units may be traced values
+    # the used units get the same weights (each unit has its own key), the rest zeros
+    np.testing.assert_array_equal(big.actor.w1[:, :3], small.actor.w1)
+    np.testing.assert_array_equal(big.actor.w2[:3], small.actor.w2)
+    np.testing.assert_array_equal(big.critic.w2[:2], small.critic.w2)
+    assert not np.any(big.actor.w1[:, 3:]) and not np.any(big.critic.w2[2:])
+    hp = cacla.CaclaHyper(actor_lr=0.1, critic_lr=0.1, gamma=0.5)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        obs, nxt = (jnp.asarray(rng.uniform(-1, 1, 11), jnp.float32) for _ in range(2))
+        tr = cacla.Transition(obs=obs, action=jnp.asarray(rng.uniform(-1, 1, 4), jnp.float32),
+                              reward=jnp.asarray(rng.uniform(-1, 0), jnp.float32),
+                              next_obs=nxt, done=jnp.asarray(False),
+                              prev_reward=jnp.asarray(-1.0))
+        small, _ = cacla.update(small, tr, hp)
+        big, _ = cacla.update(big, tr, hp)
+    assert not np.any(big.actor.w1[:, 3:]) and not np.any(big.actor.w2[3:])
+    assert not np.any(big.critic.w1[:, 2:]) and not np.any(big.critic.w2[2:])
+    np.testing.assert_allclose(big.actor.w1[:, :3], small.actor.w1, atol=1e-6)
+    np.testing.assert_allclose(big.critic.w2[:2], small.critic.w2, atol=1e-6)
+    obs = jnp.linspace(-1, 1, 11)
+    np.testing.assert_allclose(cacla.actor_apply(big.actor, obs)[1],
+                               cacla.actor_apply(small.actor, obs)[1], atol=1e-6)
+    np.testing.assert_allclose(cacla.critic_apply(big.critic, obs),
+                               cacla.critic_apply(small.critic, obs), atol=1e-6)

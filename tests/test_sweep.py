@@ -75,8 +75,12 @@ def test_grid_expands_to_every_combination_and_groups_by_static_fields():
     groups = spec.groups()
     assert [g[0]["hidden"] for g in groups] == [3, 4]  # hidden is static; n and lr traced
     assert sorted(i for _, idx in groups for i in idx) == list(range(8))
-    al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5, 7]})
+    al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "episode_length": [8, 9, 10]})
     assert len(al_spec.points()) == 6 and len(al_spec.groups()) == 3
+    # AL hidden sizes are traced (padded to the largest): one group, built at size 7
+    al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5, 7]})
+    assert len(al_spec.points()) == 6 and len(al_spec.groups()) == 1
+    assert sweep._module_config(al_spec, al_spec.groups()[0][0]).cacla.critic_hidden == 7
 
 
 @pytest.fixture
@@ -115,13 +119,15 @@ def test_one_compile_per_static_group(tmp_path, trace_counter):
     assert trace_counter["tl"] == 2  # 8 points, 2 hidden sizes
     assert len(s["points"]) == 8 and all(len(p["runs"]) == 2 for p in s["points"])
     spec = _spec(TINY_AL, name="al", figure="figx",
-                 grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5]})
+                 grid={"critic_lr": [0.01, 0.1], "episode_length": [8, 10],
+                       "critic_hidden": [3, 5]})
     s = sweep.run(spec, tmp_path, show_progress=False)
-    assert trace_counter["al"] == 2  # 4 points, 2 critic sizes; 2 chunks of the same shape
+    # 8 points, 2 episode lengths (static), hidden sizes traced; 2 chunks of the same shape
+    assert trace_counter["al"] == 2
     assert len(s["groups"]) == 2
     # the same static config and batch shape again (another sweep): no new compile
-    sweep.run(_spec(TINY_AL, name="al2", grid={"critic_lr": [0.03, 0.3], "critic_hidden": [3, 5]},
-                    sigma=0.2), tmp_path, show_progress=False)
+    sweep.run(_spec(spec.to_json() | {"name": "al2", "params": {**spec.params, "sigma": 0.2}}),
+              tmp_path, show_progress=False)
     assert trace_counter["al"] == 2
     for f in ("sweep.json", "runs.csv", "figx.png", "figx.json", "metrics.npz"):
         assert (tmp_path / "al" / f).is_file(), f
@@ -238,8 +244,8 @@ def _sweep_process(spec: dict, out: pathlib.Path, *extra: str, env: dict | None 
 
 def test_two_forced_host_devices_give_the_same_results(tmp_path):
     spec = {**TINY_AL, "seeds": 3}  # 6 runs, and 2 groups -> padding is exercised too
-    spec = {**spec, "grid": {"critic_lr": [0.01], "critic_hidden": [3, 4]},
-            "params": {k: v for k, v in spec["params"].items() if k != "critic_hidden"}}
+    spec = {**spec, "grid": {"critic_lr": [0.01], "episode_length": [8, 10]},
+            "params": {k: v for k, v in spec["params"].items() if k != "episode_length"}}
     _sweep_process(spec, tmp_path / "one")
     _sweep_process(spec, tmp_path / "two",
                    env={"XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
