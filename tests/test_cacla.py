@@ -151,14 +151,15 @@ def test_unused_hidden_units_stay_zero_and_change_nothing():
     assert not np.any(big.actor.w1[:, 3:]) and not np.any(big.critic.w2[2:])
     hp = cacla.CaclaHyper(actor_lr=0.1, critic_lr=0.1, gamma=0.5)
     rng = np.random.default_rng(0)
+    update = jax.jit(cacla.update)
     for _ in range(20):
         obs, nxt = (jnp.asarray(rng.uniform(-1, 1, 11), jnp.float32) for _ in range(2))
         tr = cacla.Transition(obs=obs, action=jnp.asarray(rng.uniform(-1, 1, 4), jnp.float32),
                               reward=jnp.asarray(rng.uniform(-1, 0), jnp.float32),
                               next_obs=nxt, done=jnp.asarray(False),
                               prev_reward=jnp.asarray(-1.0))
-        small, _ = cacla.update(small, tr, hp)
-        big, _ = cacla.update(big, tr, hp)
+        small, _ = update(small, tr, hp)
+        big, _ = update(big, tr, hp)
     assert not np.any(big.actor.w1[:, 3:]) and not np.any(big.actor.w2[3:])
     assert not np.any(big.critic.w1[:, 2:]) and not np.any(big.critic.w2[2:])
     np.testing.assert_allclose(big.actor.w1[:, :3], small.actor.w1, atol=1e-6)
