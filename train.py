@@ -356,7 +356,9 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
              "episodes. Critic sweeps plot the critic's RMS TD error per episode (lower is "
              "better), actor sweeps the reward at each training episode's last step (higher "
              "is better); the value below is the mean over the last tenth of the episodes, "
-             "mean ± std over seeds. Diverged runs (non-finite) are counted and left out.", "",
+             "mean ± std over seeds. Diverged runs (non-finite) are counted and left out. "
+             "The paper's text does not name the measure its Figs 8 and 9 plot, so these two "
+             "are our choice; its conclusions are compared below, not its curves.", "",
              "| figure | episodes | paper | ours: value per grid point | best (ours) | the "
              "paper's choice, ranked among ours |", "|---|---|---|---|---|---|"]
     for name, s in sweeps.items():
