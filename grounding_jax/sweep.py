@@ -407,10 +407,14 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
     keys, hp = _pad((keys, hp), pad)
     ck = None
     if out is not None:
-        ck = Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
-                          {"spec": spec.to_json(), "group": group, "static": static,
-                           "rows": rows.tolist(), "devices": jax.local_device_count(),
-                           "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
+        try:
+            ck = Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
+                              {"spec": spec.to_json(), "group": group, "static": static,
+                               "rows": rows.tolist(), "devices": jax.local_device_count(),
+                               "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
+        except CheckpointError as e:
+            raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
+                                  "starts over") from None
         if ck.latest_step() is not None and not resume:
             raise CheckpointError(f"{ck.directory}: holds a checkpoint of an earlier run; "
                                   "pass --resume to continue it or --overwrite to start over")
