@@ -198,10 +198,8 @@ def al_sweeps(key, out: pathlib.Path, specs: dict, resume: bool) -> dict:
         s = sweep.run(spec, out, resume=resume, overwrite=not resume, key=k,
                       show_progress=False)
         res[name] = {k2: s[k2] for k2 in ("name", "spec", "metric", "window", "points",
-                                           "wall_s", "diverged_runs")}
-        best = max((p for p in s["points"] if p["mean"] is not None),
-                   key=lambda p: p["mean"] * (-1 if spec.metric == "td_error" else 1))
-        print(f"sweep {name}: best {best['point']} ({spec.metric} {best['mean']:.3g}), "
+                                           "best", "wall_s", "diverged_runs")}
+        print(f"sweep {name}: best {s['best']}, "
               f"{s['wall_s']:.0f} s", flush=True)
     return res
 
@@ -341,6 +339,8 @@ def metrics_csv(result: dict) -> str:
 
 
 def _sweeps_report(sweeps: dict | None) -> list[str]:
+    from grounding_jax.sweep import LOWER_IS_BETTER
+
     if not sweeps:
         return ["", "## Action learner sweeps (Figs 8, 9)", "", "Not in this metrics.json "
                 "(written before the sweeps were part of train.py)."]
@@ -364,21 +364,20 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
     for name, s in sweeps.items():
         spec = s["spec"]
         x = spec["x"]
-        lower = s["metric"] == "td_error"
         ok = [p for p in s["points"] if p["mean"] is not None]
-        best = min(ok, key=lambda p: p["mean"]) if lower else max(ok, key=lambda p: p["mean"])
         vals = "; ".join(f"{p['point'][x]}: " + ("diverged" if p["mean"] is None else
                                                  f"{p['mean']:.3f} ± {p['std']:.3f}")
                          for p in s["points"])
         eps = spec["params"].get("phase1_episodes", 150) + spec["params"].get(
             "phase2_episodes", 300)
         div = f" ({s['diverged_runs']} runs diverged)" if s["diverged_runs"] else ""
-        ranked = sorted(ok, key=lambda p: p["mean"] * (1 if lower else -1))
+        ranked = sorted(ok, key=lambda p: p["mean"] * (1 if s["metric"] in LOWER_IS_BETTER
+                                                       else -1))
         pick = [i for i, p in enumerate(ranked) if p["point"][x] == chosen.get(name)]
         rank = (f"{x} = {chosen[name]}: {pick[0] + 1} of {len(ranked)}" if pick else
                 "not in the grid")
         lines.append(f"| {titles.get(name, name)}: {x} ({s['metric']}) | {eps} | "
-                     f"{spec['paper']} | {vals}{div} | {x} = {best['point'][x]} | {rank} |")
+                     f"{spec['paper']} | {vals}{div} | {x} = {ranked[0]['point'][x]} | {rank} |")
     lines += [""] + [f"![{titles.get(n, n)}](sweeps/{n}/{s['spec']['figure']}.png)"
                      for n, s in sweeps.items()]
     return lines

@@ -140,6 +140,8 @@ METRICS = {
     "tl": {"test_acc": "test accuracy", "train_acc": "training accuracy",
            "test_rmse": "test RMSE per output unit", "train_rmse": "training RMSE"},
 }
+#: metrics where lower is better (for the others higher is)
+LOWER_IS_BETTER = frozenset({"td_error", "final_point_l1", "test_rmse", "train_rmse"})
 TOP_KEYS = {"name": str, "module": str, "figure": str, "title": str, "description": str,
             "seeds": int, "metric": str, "x": str, "chunk": int, "seed": int, "paper": str,
             "params": dict, "grid": dict}
@@ -339,9 +341,7 @@ def _hyper(spec: SweepSpec, rows: list[dict]):
     """The traced fields of a batch of rows as arrays with a leading batch axis."""
     f32 = jnp.float32
     if spec.module == "tl":
-        return tl.TLHyper(lr=_column(rows, "lr", f32), hidden=_column(rows, "hidden", jnp.int32),
-                          replication=_column(rows, "replication", jnp.int32),
-                          noise=_column(rows, "noise", f32))
+        return tl.stack_hyper(rows)
     ch = cacla.CaclaHyper(**{k: _column(rows, k, f32) for k in
                              ("actor_lr", "critic_lr", "sigma", "gamma", "var_beta")})
     env = EnvParams(**{k: _column(rows, k, f32) for k in
@@ -512,7 +512,11 @@ def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarr
                     "std": float(v.std()) if v.size else None,
                     "runs": [float(x) for x in value[i]],
                     "diverged": [int(s) for s in np.flatnonzero(~ok[i])]})
-    out = {"metric": spec.metric, "window": window, "points": pts}
+    ok_pts = [p for p in pts if p["mean"] is not None]
+    sign = 1 if spec.metric in LOWER_IS_BETTER else -1
+    out = {"metric": spec.metric, "window": window, "points": pts,
+           "lower_is_better": sign == 1,
+           "best": min(ok_pts, key=lambda p: sign * p["mean"])["point"] if ok_pts else None}
     if curve is not None:
         c = np.asarray(curve, np.float64).reshape(n_pts, spec.seeds, -1)
         out["curves"] = [np.where(ok[i][:, None], c[i], np.nan).tolist() for i in range(n_pts)]

@@ -88,6 +88,14 @@ class TLHyper:
     noise: Any = 0.0
 
 
+def stack_hyper(rows: list[dict]) -> TLHyper:
+    """A batch of hyperparameters from dicts with ``lr``, ``hidden``, ``replication`` and
+    ``noise``: arrays with a leading batch axis (float32 rates, int32 sizes)."""
+    return TLHyper(**{f: jnp.asarray([r[f] for r in rows],
+                                     jnp.float32 if f in ("lr", "noise") else jnp.int32)
+                      for f in ("lr", "hidden", "replication", "noise")})
+
+
 def validate(hp: TLHyper, config: TLConfig) -> None:
     """Raise ValueError naming the field for bad concrete values (before any compile)."""
     lr, hid, rep, noise = (np.asarray(getattr(hp, f)) for f in

@@ -13,7 +13,6 @@ import time
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import tl, tl_data
@@ -54,12 +53,7 @@ def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.
     rows = [{f: g.get(f, getattr(default, f)) for f in ("lr", "hidden", "replication", "noise")}
             for g in grid for _ in range(seeds)]
 
-    def hyper(rs: list[dict]) -> tl.TLHyper:
-        return tl.TLHyper(**{f: jnp.asarray([r[f] for r in rs],
-                                            jnp.float32 if f in ("lr", "noise") else jnp.int32)
-                             for f in ("lr", "hidden", "replication", "noise")})
-
-    tl.validate(hyper(rows), dataclasses.replace(
+    tl.validate(tl.stack_hyper(rows), dataclasses.replace(
         config, max_hidden=max(int(r["hidden"]) for r in rows)))
     keys = jax.random.split(key, len(rows))
     out: dict[str, list] = {}
@@ -68,7 +62,8 @@ def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.
         idx = [i for i, r in enumerate(rows) if int(r["hidden"]) == h]
         cfg = dataclasses.replace(config, max_hidden=h)
         train = jax.jit(jax.vmap(tl.make_train(cfg, data)))
-        _, m = jax.block_until_ready(train(keys[np.asarray(idx)], hyper([rows[i] for i in idx])))
+        _, m = jax.block_until_ready(train(keys[np.asarray(idx)],
+                                           tl.stack_hyper([rows[i] for i in idx])))
         for k, v in m.items():
             out.setdefault(k, []).append(np.asarray(v))
         order.extend(idx)

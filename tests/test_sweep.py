@@ -211,6 +211,9 @@ def test_a_diverging_point_is_flagged_and_the_others_are_unchanged(tmp_path):
                     show_progress=False)
     assert bad["diverged_runs"] == 2 and good["diverged_runs"] == 0
     assert bad["points"][1]["diverged"] == [0, 1] and bad["points"][1]["mean"] is None
+    assert bad["best"] == {"critic_lr": 0.01} and bad["lower_is_better"]  # td_error
+    lower = min(good["points"], key=lambda p: p["mean"])["point"]
+    assert good["best"] == lower
     assert bad["points"][0] == good["points"][0]  # same keys, same results, bit for bit
     m_good, m_bad = _metrics(tmp_path / "good"), _metrics(tmp_path / "bad")
     for k in m_good:
