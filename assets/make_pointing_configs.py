@@ -1,12 +1,21 @@
-"""Find the pointing configuration of each position by inverse kinematics; write the JSON.
+"""Find the pointing configuration of each position; write ``pointing_configs.json``.
 
-The paper stores, for each object position, the joint angles at which the fingers point at the
-object; the point reward is the L1 distance to them. Here: the palm site is placed
-``CLEARANCE`` above the top centre of the object, palm facing down as far as the four joints
-allow (in the null space of the position task), by damped least squares from many starts,
-within the model's joint limits. The hand must not touch any object in that pose (checked).
+The paper stores, for each object position, the joint angles at which the hand points at the
+object; the point reward is the L1 distance to them. Here a pointing pose is an open-hand
+pointing gesture from a distance: the palm faces the object with its normal aimed at the
+object's centre, ``DISTANCE`` (8-15 cm) away, above the table, with every arm capsule at least
+``CLEARANCE`` from all three objects (so pointing never touches anything), also on the way
+there from home (``PATH_CLEARANCE``), and a small pull toward the home pose keeps that path
+short.
 
-Run once, from the repository root:  ``python assets/make_pointing_configs.py``
+Why the palm and not the fingers: the iCub's fingers extend along its forearm and the arm has
+no wrist joint in this task, so with four joints no pose 8-15 cm from these objects aims the
+finger ray at them (the best found here miss by 47-93 degrees); the palm's normal can be aimed
+exactly. The JSON records both angles (``aim_deg`` for the palm, ``finger_aim_deg``).
+
+Search: random joint samples within the model's limits, then a local random search from the
+best ones (deterministic: fixed seed). Run once, from the repository root:
+``python assets/make_pointing_configs.py``
 """
 
 from __future__ import annotations
@@ -15,59 +24,89 @@ import json
 import pathlib
 import sys
 
-import mujoco
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 from grounding_jax import ik, scene  # noqa: E402
 
-CLEARANCE = 0.01  # metres between the palm site and the object's top
+DISTANCE = (0.08, 0.15)  # metres from the palm site to the object's centre
+CLEARANCE = 0.04  # metres between every arm capsule and every object
+PATH_CLEARANCE = 0.03  # the same, along the paths from home (see _paths)
+TIP_ABOVE_TABLE = 0.06  # metres: the palm site stays this far above the table top
+HOME_WEIGHT = 2.0  # degrees of aim traded for one scaled-joint unit (L1) nearer home
 
 
-def _nearest_samples(target: np.ndarray, rng: np.random.Generator, n: int = 20) -> np.ndarray:
-    """Starts for the local solver: the random joint samples whose palm lands nearest."""
-    m = scene.model()
-    idx = scene.index()
-    d = mujoco.MjData(m)
-    d.qpos[:] = scene.home_qpos()
-    qs = rng.uniform(idx.joint_range[:, 0], idx.joint_range[:, 1], size=(20000, 4))
-    dist = np.empty(len(qs))
-    for i, q in enumerate(qs):
-        d.qpos[idx.arm_qpos] = q
-        mujoco.mj_kinematics(m, d)
-        dist[i] = np.linalg.norm(d.site_xpos[m.site("palm").id] - target)
-    return qs[np.argsort(dist)[:n]]
+def _paths(q: np.ndarray) -> list[np.ndarray]:
+    """Joint-space paths from home to ``q``: the straight line, and the path of an arm whose
+    joints each move at most 1/3 scaled unit a step (joints arrive at different times)."""
+    home = np.radians(scene.HOME_POSE_DEG)
+    straight = [home + (q - home) * t for t in np.linspace(0.0, 1.0, 11)[1:]]
+    lim = np.radians(scene.PAPER_LIMITS_DEG)
+    step = (lim[:, 1] - lim[:, 0]) / 6.0  # 1/3 of a scaled unit (range 2) per joint
+    cur, clipped = home.copy(), []
+    while not np.allclose(cur, q):
+        cur = cur + np.clip(q - cur, -step, step)
+        for t in (0.5, 1.0):
+            clipped.append(clipped[-1] + (cur - clipped[-1]) * t if clipped else cur)
+    return straight + clipped
+
+
+def _cost(q: np.ndarray, target: np.ndarray) -> tuple[float, dict]:
+    tip, direction = ik.palm_ray(q)
+    to_obj = target - tip
+    dist = float(np.linalg.norm(to_obj))
+    aim = float(np.degrees(np.arccos(np.clip(to_obj @ direction / dist, -1.0, 1.0))))
+    clear = ik.clearance(q)
+    path_clear = min(ik.clearance(x) for x in _paths(q))
+    home = float(np.abs(ik.scaled(q) - ik.scaled(np.radians(scene.HOME_POSE_DEG))).sum())
+    bad = (max(0.0, DISTANCE[0] - dist) + max(0.0, dist - DISTANCE[1])
+           + max(0.0, CLEARANCE - clear) + max(0.0, PATH_CLEARANCE - path_clear)
+           + max(0.0, scene.TABLE_Z + TIP_ABOVE_TABLE - tip[2]))
+    ftip, fdir = ik.finger_ray(q)
+    fvec = target - ftip
+    finger_aim = float(np.degrees(np.arccos(np.clip(fvec @ fdir / np.linalg.norm(fvec), -1, 1))))
+    info = {"aim_deg": aim, "palm_distance_m": dist, "clearance_m": clear,
+            "path_clearance_m": path_clear,
+            "palm_xyz_m": tip.tolist(), "finger_aim_deg": finger_aim}
+    return aim + HOME_WEIGHT * home + 1e4 * bad, info
 
 
 def main() -> None:
-    m = scene.model()
     idx = scene.index()
+    lo, hi = idx.joint_range[:, 0], idx.joint_range[:, 1]
     rng = np.random.default_rng(0)
-    out = {"clearance_m": CLEARANCE, "site": "palm", "positions": {}}
-    d = mujoco.MjData(m)
+    samples = rng.uniform(lo, hi, size=(3000, 4))
+    out = {"distance_m": list(DISTANCE), "clearance_m": CLEARANCE,
+           "path_clearance_m": PATH_CLEARANCE,
+           "tip_above_table_m": TIP_ABOVE_TABLE, "positions": {}}
     for p, name in enumerate(scene.POSITIONS):
-        target = scene.object_positions()[p] + np.array([0, 0, scene.OBJECT_HALF + CLEARANCE])
-        best = None
-        starts = [np.radians(scene.HOME_POSE_DEG)] + list(_nearest_samples(target, rng))
-        for q0 in starts:
-            q, err = ik.solve(target, q0)
-            d.qpos[:] = scene.home_qpos()
-            d.qpos[idx.arm_qpos] = q
-            mujoco.mj_forward(m, d)
-            down = float(-ik.palm_down_error(d, m.site("palm").id)[2] + 1.0)  # cos to down
-            touching = int(d.sensordata[idx.sensor_contact].sum())
-            score = err + 0.02 * (1.0 - down) + (1.0 if touching else 0.0)
-            if best is None or score < best[0]:
-                best = (score, q, err, down, touching, d.site_xpos[m.site("palm").id].copy())
-        _, q, err, down, touching, palm = best
-        print(f"{name}: joints {np.degrees(q).round(2)} deg, palm error {err * 1000:.1f} mm, "
-              f"palm-down cosine {down:.2f}, touching {touching}")
+        target = scene.object_positions()[p]
+        costs = np.array([_cost(q, target)[0] for q in samples])
+        best = []
+        for q in samples[np.argsort(costs)[:8]]:  # local random search from the best samples
+            c, step = _cost(q, target)[0], np.radians(4.0)
+            for _ in range(300):
+                trial = np.clip(q + rng.normal(0.0, step, 4), lo, hi)
+                ct = _cost(trial, target)[0]
+                if ct < c:
+                    q, c = trial, ct
+                else:
+                    step = max(step * 0.98, np.radians(0.05))
+            best.append((c, q))
+        c, q = min(best, key=lambda t: t[0])
+        _, info = _cost(q, target)
+        if c >= 1e3:
+            raise SystemExit(f"{name}: no pose meets the distance/clearance constraints")
+        print(f"{name}: joints {np.degrees(q).round(2)} deg, aim {info['aim_deg']:.1f} deg, "
+              f"palm {info['palm_distance_m'] * 100:.1f} cm from the object (fingers off by "
+              f"{info['finger_aim_deg']:.0f} deg), "
+              f"clearance {info['clearance_m'] * 100:.1f} cm "
+              f"({info['path_clearance_m'] * 100:.1f} cm on the way from home)")
         out["positions"][name] = {
             "joints_deg": [round(float(v), 4) for v in np.degrees(q)],
-            "palm_xyz_m": [round(float(v), 5) for v in palm],
             "target_xyz_m": [round(float(v), 5) for v in target],
-            "palm_error_m": round(err, 5),
-            "palm_down_cosine": round(down, 4),
+            **{k: (round(v, 5) if isinstance(v, float) else [round(x, 5) for x in v])
+               for k, v in info.items()},
         }
     scene.POINTING_JSON.write_text(json.dumps(out, indent=2) + "\n")
     print("wrote", scene.POINTING_JSON)

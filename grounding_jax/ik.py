@@ -66,3 +66,53 @@ def palm_position(q: np.ndarray) -> np.ndarray:
     d.qpos[scene.index().arm_qpos] = q
     mujoco.mj_kinematics(m, d)
     return d.site_xpos[m.site("palm").id].copy()
+
+
+def finger_ray(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fingertip position and the unit direction the fingers point in, for arm joints ``q``.
+
+    The fingers are the ``fingers_col`` capsule; its end away from the palm is the tip.
+    """
+    m = scene.model()
+    d = mujoco.MjData(m)
+    d.qpos[:] = scene.home_qpos()
+    d.qpos[scene.index().arm_qpos] = q
+    mujoco.mj_kinematics(m, d)
+    g = m.geom("fingers_col").id
+    axis = d.geom_xmat[g].reshape(3, 3)[:, 2] * m.geom_size[g][1]
+    ends = d.geom_xpos[g] + axis, d.geom_xpos[g] - axis
+    palm = d.geom_xpos[m.geom("palm_col").id]
+    far = int(np.linalg.norm(ends[1] - palm) > np.linalg.norm(ends[0] - palm))
+    direction = ends[far] - ends[1 - far]
+    direction /= np.linalg.norm(direction)
+    return ends[far] + direction * m.geom_size[g][0], direction
+
+
+def clearance(q: np.ndarray) -> float:
+    """Smallest distance (metres) between any arm capsule and any object, objects of layout
+    0 at rest, for arm joints ``q``."""
+    m = scene.model()
+    d = mujoco.MjData(m)
+    d.qpos[:] = scene.home_qpos()
+    d.qpos[scene.index().arm_qpos] = q
+    mujoco.mj_forward(m, d)
+    fromto = np.zeros(6)
+    return min(mujoco.mj_geomDistance(m, d, m.geom(a).id, m.geom(f"{s}_geom").id, 1.0, fromto)
+               for a in scene.ARM_CAPSULES for s in scene.SHAPES)
+
+
+def scaled(q: np.ndarray) -> np.ndarray:
+    """Joint angles (radians) scaled to [-1, 1] by the paper's eq. 1 (NumPy)."""
+    lim = np.radians(scene.PAPER_LIMITS_DEG)
+    return 2.0 * (q - lim[:, 0]) / (lim[:, 1] - lim[:, 0]) - 1.0
+
+
+def palm_ray(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Palm site position and the palm's normal (the way the open palm faces), for ``q``."""
+    m = scene.model()
+    d = mujoco.MjData(m)
+    d.qpos[:] = scene.home_qpos()
+    d.qpos[scene.index().arm_qpos] = q
+    mujoco.mj_kinematics(m, d)
+    site = m.site("palm").id
+    return d.site_xpos[site].copy(), -d.site_xmat[site].reshape(3, 3)[:, 1].copy()

@@ -25,7 +25,7 @@ JOINT_NAMES = ("r_shoulder_pitch", "r_shoulder_roll", "r_shoulder_yaw", "r_elbow
 #: Joint limits the paper uses for eq. 1, degrees (pitch, roll, yaw, elbow).
 PAPER_LIMITS_DEG = np.array([[-95.0, 90.0], [0.0, 161.0], [-37.0, 100.0], [-6.0, 106.0]])
 #: Start pose of every episode (the URDF zero pose puts the hand inside the table).
-HOME_POSE_DEG = np.array([-10.0, 80.0, 0.0, 20.0])
+HOME_POSE_DEG = np.array([-60.0, 110.0, 67.0, 97.0])
 
 ACTIONS = ("point", "touch", "push")
 POSITIONS = ("left", "middle", "right")

@@ -1,15 +1,17 @@
 """The MJX and C MuJoCo backends agree (issue 3, item 4).
 
-Measured on this scene (float32 MJX vs float64 C, 10 substeps of 5 ms per RL step):
-- free motion agrees to ~1.3e-4 rad and the sphere push to ~5e-6 rad / ~0.1 mm over 75 steps;
+Measured on this scene (float32 MJX vs float64 C, 10 substeps of 5 ms per RL step; 300 g
+objects with torsional friction, the sphere with rolling friction):
+- free motion agrees to ~2e-7 rad and the sphere push to ~2e-5 rad / ~0.1 mm over 75 steps;
 - pushes of the box and the cylinder do not agree to 1 mm: MJX collides a capsule with a box
   through its generic convex routine and with a cylinder through its own capsule-cylinder
   routine, while C MuJoCo uses its analytic box-capsule and CCD-based cylinder code. Contact
-  points and normals differ, so a single RL step in contact differs by up to ~0.02 rad in the
-  joints and ~2 cm in where the box ends up; over an episode the box's final position differs
-  by up to ~7 cm (it is shoved, then slides). These tests therefore hold the box/cylinder
-  pushes to what does agree: the arm's path (0.03 rad), the palm-target distance (5 mm), which
-  object moved, and when a wrong-object bump ends the episode (within one step).
+  points and normals differ; over an episode the arm's path differs by up to 0.028 rad (box)
+  and 0.055 rad (cylinder), the palm-target distance by 5 mm / 24 mm, and how far the target
+  is shoved by 1.3 cm (box) and 11.6 cm (cylinder: 15.1 cm on C, 3.5 cm on MJX). These tests
+  therefore hold the box/cylinder pushes to what does agree: the arm's path (0.08 rad), the
+  palm-target distance (3.5 cm), which object moved (> 2 cm, the others < 1 mm), the step of
+  first contact, and when a wrong-object bump ends the episode (within one step).
 See README ("Backends") for the full table.
 """
 
@@ -62,9 +64,10 @@ def test_box_and_cylinder_pushes_agree_on_what_happens(run_c, run_mjx, push_wayp
                                                        position):
     task = gj.make_task("push", position, 0)
     (f, c), (_, x) = _both(run_c, run_mjx, push_waypoints[position], task)
-    assert np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max() < 0.03
+    # measured with 300 g objects: box 0.028 rad / 5 mm, cylinder 0.055 rad / 24 mm
+    assert np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max() < 0.08
     np.testing.assert_allclose(c.metrics["palm_target_dist"], x.metrics["palm_target_dist"],
-                               atol=5e-3)
+                               atol=0.035)
     target = list(scene.layout_shape_slots()[0]).index(position)
     for traj in (c, x):
         moved = np.linalg.norm(_objects(traj.qpos[-1]) - _objects(f.qpos), axis=-1)

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from grounding_jax import scene
+from grounding_jax import ik, scene
 
 
 def test_exactly_four_actuated_arm_joints():
@@ -53,31 +53,34 @@ def test_36_layouts_are_all_shape_and_colour_orders():
 
 
 @pytest.mark.parametrize("position", range(3))
-def test_pointing_pose_puts_palm_within_2cm_above_its_object(position):
+def test_pointing_pose_aims_the_palm_at_its_object_from_a_distance(position):
     m = scene.model()
     d = mujoco.MjData(m)
     d.qpos[:] = scene.home_qpos()
-    d.qpos[scene.index().arm_qpos] = scene.pointing_configs()[position]
-    mujoco.mj_forward(m, d)
-    palm = d.site_xpos[m.site("palm").id]
-    obj = scene.object_positions()[position]
-    top = obj[2] + scene.OBJECT_HALF
-    assert np.linalg.norm(palm[:2] - obj[:2]) < 0.02
-    assert 0.0 < palm[2] - top < 0.02
-    # and the hand does not touch any object there
-    assert d.sensordata[scene.index().sensor_contact].sum() == 0
+    q = scene.pointing_configs()[position]
+    palm, normal = ik.palm_ray(q)
+    to_obj = scene.object_positions()[position] - palm
+    dist = np.linalg.norm(to_obj)
+    assert 0.08 <= dist <= 0.15
+    assert np.degrees(np.arccos(to_obj @ normal / dist)) < 2.0  # the palm faces the object
+    assert palm[2] > scene.TABLE_Z + 0.05
+    # clear of every object by >= 4 cm, whatever the layout (shapes differ per position)
+    assert ik.clearance(q) >= 0.04 - 1e-4
+    for layout in range(0, len(scene.LAYOUTS), 6):
+        scene.place_objects(d.qpos, layout)
+        d.qpos[scene.index().arm_qpos] = q
+        mujoco.mj_forward(m, d)
+        assert d.ncon == 0 or all(
+            m.geom_contype[d.contact.geom1[i]] & 1 or m.geom_contype[d.contact.geom2[i]] & 1
+            for i in range(d.ncon))  # only objects resting on the table
+        assert d.sensordata[scene.index().sensor_contact].sum() == 0
 
 
 def test_pointing_json_matches_what_the_model_gives():
     data = json.loads(scene.POINTING_JSON.read_text())
-    m = scene.model()
-    d = mujoco.MjData(m)
     for p, name in enumerate(scene.POSITIONS):
-        d.qpos[:] = scene.home_qpos()
-        d.qpos[scene.index().arm_qpos] = scene.pointing_configs()[p]
-        mujoco.mj_kinematics(m, d)
-        np.testing.assert_allclose(d.site_xpos[m.site("palm").id],
-                                   data["positions"][name]["palm_xyz_m"], atol=1e-4)
+        palm, _ = ik.palm_ray(scene.pointing_configs()[p])
+        np.testing.assert_allclose(palm, data["positions"][name]["palm_xyz_m"], atol=1e-4)
 
 
 def test_home_pose_is_free_of_contacts_and_objects_rest():
