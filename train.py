@@ -30,8 +30,9 @@ PROFILES = {
     # the TL grids are those of sweeps/fig6_tl_hidden.toml and sweeps/fig7_tl_replication.toml
     "paper": {"tl_epochs": 600, "tl_seeds": 5, "tl_hidden": [5, 10, 20, 30, 40, 50, 75, 100],
               "tl_replication": [1, 2, 5, 10, 15, 20, 25, 30], "sweep_seeds": 5,
-              # the paper's schedule is 150 + 300 episodes: success is measured there too
-              "al_seeds": 5, "al_phase1": 150, "al_phase2": 2850, "al_no_tricks": 2000,
+              # the paper's schedule is 150 + 300 episodes: success is measured there, and
+              # after 1200 (more did not help: README "Action learner"); >= 8 agents
+              "al_seeds": 8, "al_phase1": 150, "al_phase2": 1050, "al_no_tricks": 2000,
               "an_seeds": 5, "an_tl_epochs": 600},
 }
 SWEEP_DIR = pathlib.Path(__file__).resolve().parent / "sweeps"
@@ -181,7 +182,7 @@ def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> tuple[dict
     res, agents = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"],
                         phase2=st["al_phase2"],
                 no_tricks_episodes=st["al_no_tricks"], env_config=EnvConfig(backend=backend),
-                checkpoints=(450, 1500))
+                checkpoints=(450,))
     print(f"al    trained {res['seeds']} agents, {res['rl_steps']:,} RL steps in "
           f"{res['train_s']:.0f} s", flush=True)
     return res, agents
@@ -250,29 +251,46 @@ def _an_report(an: dict) -> list[str]:
 
 def _al_report(al: dict) -> list[str]:
     eps = sorted(al["success"], key=int)
-    paper_goal = {"point": "perfect (Fig 10); goal >= 95%", "touch": "oscillates near the "
-                  "target (Fig 10); goal >= 80%", "push": "good (Fig 10); goal >= 80%"}
-    head = " | ".join(f"ours after {e} episodes" for e in eps)
+    goal = {"point": "perfect (Fig 10); goal >= 95%", "touch": "keeps touching gently "
+            "(Fig 10); goal >= 85%", "push": "very good (Fig 10); goal >= 90%"}
+    head = " | ".join(f"after {e} episodes" for e in eps)
+
+    def cell(table: dict, a: str) -> str:
+        lo, _, med, _, hi = table["spread"][a]
+        return f"{_pct(med)} ({_pct(lo)}-{_pct(hi)})"
+
     lines = ["", "## Action learner", "",
              f"CACLA, {al['seeds']} agents, phase 1 for {al['phase1']} episodes then plain "
-             f"CACLA; hyperparameters {al['hyper']} (tuned here; with the paper's actor lr "
-             "0.001 little is learned in our env). Greedy actor, 9 tasks x 6 layouts; random "
-             f"starts: joints uniform within +-{al['random_start_noise']} (scaled) of home, "
-             "5 per task. 450 episodes is the paper's schedule (150 + 300).", "",
+             f"CACLA; hyperparameters {al['hyper']}. Judged with the greedy actor in "
+             "100-step episodes on all 9 tasks x 36 layouts from home (the criteria: point -- "
+             "final L1 < 0.1, L1 range over the last 10 steps < 0.02, target moved < 1 cm; "
+             "touch -- contact with the target in the second half, target moved < 3 cm; push "
+             "-- target moved >= 2 cm; none may move a wrong object). Random starts: point "
+             f"from joints uniform within +-{al['random_start_noise']} (scaled) of home, one "
+             "per position and layout (108). Goal switch: each of the 9 tasks x 6 layouts "
+             "switched at step 20 to each task that differs in action or position alone "
+             "(216 per agent), judged by the second task's criterion on what happened after "
+             "the switch. Each cell: the median agent's success rate (min-max over agents). "
+             "450 episodes is the paper's schedule (150 + 300).", "",
              f"| success rate | paper | {head} |", "|---|---|" + "---|" * len(eps)]
     for a in ("point", "touch", "push"):
-        lines.append(f"| {a}, from home | {paper_goal[a]} | " + " | ".join(
-            _pct(al["success"][e]["home"]["by_action"][a]) for e in eps) + " |")
+        lines.append(f"| {a}, from home | {goal[a]} | " + " | ".join(
+            cell(al["success"][e]["home"], a) for e in eps) + " |")
     lines.append("| point, random starts | generalizes (Fig 11); goal >= 90% | " + " | ".join(
-        _pct(al["success"][e]["random_starts"]["by_action"]["point"]) for e in eps) + " |")
-    lines.append("| point: median / 90th percentile final L1 (goal < 0.1) | - | " + " | ".join(
-        f"{al['success'][e]['home']['point_l1_median']:.3f} / "
-        f"{al['success'][e]['home']['point_l1_p90']:.3f}" for e in eps) + " |")
+        cell(al["success"][e]["random_starts"], "point") for e in eps) + " |")
+    if all("switch" in al["success"][e] for e in eps):
+        lines.append("| goal switch at step 20 | turns to the new goal (Fig 13); goal >= "
+                     "80% | " + " | ".join(_pct(al["success"][e]["switch"]["overall"])
+                                           for e in eps) + " |")
+    lines.append("| point: median / 90th percentile final L1 (criterion < 0.1) | - | "
+                 + " | ".join(f"{al['success'][e]['home']['point_l1_median']:.3f} / "
+                              f"{al['success'][e]['home']['point_l1_p90']:.3f}" for e in eps)
+                 + " |")
     last = al["final"]["home"]["by_task"]
-    lines += ["", f"Per task after {eps[-1]} episodes, from home: " + ", ".join(
-        f"{k} {_pct(v)}" for k, v in last.items()) + ".", "",
-        "| Fig 13 switch (step 20) | reward before | just after | final | second task "
-        "succeeded |", "|---|---|---|---|---|"]
+    lines += ["", f"Per task after {eps[-1]} episodes, from home (all agents' episodes "
+              "pooled): " + ", ".join(f"{k} {_pct(v)}" for k, v in last.items()) + ".", "",
+              "| Fig 13 switch (step 20) | reward before | just after | final | second task "
+              "succeeded |", "|---|---|---|---|---|"]
     for r in al["fig13"]["runs"]:
         lines.append(f"| {r['first']} -> {r['second']} | {r['reward_before_switch']:+.3f} | "
                      f"{r['reward_after_switch']:+.3f} | {r['final_reward']:+.3f} | "
@@ -293,22 +311,19 @@ def _al_report(al: dict) -> list[str]:
     lines += ["", "Exploration alone knocks objects: a perfect point policy (tracking the "
               "stored pose) plus Gaussian exploration noise moves a wrong object in "
               + ", ".join(f"{_pct(v['wrong_moved_share'])} of episodes at sigma {k}"
-                          for k, v in knocks.items()) + ".", "",
-              "Where we miss: every success goal (see the table). Measured causes: (1) the "
-              "pointing pose holds the palm 1 cm above the object and the objects stand 11 cm "
-              "apart, so wrong objects get knocked: exploration alone does it at sigma 0.3 "
-              "(which learned each task fastest in tuning, but ~90% of its training episodes "
-              "ended after ~20 steps), and at sigma 0.1 the learner's own imperfect moves "
-              "still end many training episodes early (above); (2) the greedy actor settles "
-              "in ~10 steps at a fixed point that is biased away from the stored pose (Fig 11), "
-              "and the precision the "
-              "L1 < 0.1 criterion asks (about 2 degrees per joint) is not reached by online "
-              "updates that interleave 9 tasks; (3) the touch reward penalizes touching the "
-              "target (-0.3), so hovering next to it scores better than touching it, and the "
-              "touch criterion (contact in the last 10 steps) disagrees with its own reward -- "
-              "the paper also reports touch oscillating near the target. Success rates vary a "
-              "lot between seeds (tuning cells of 3 seeds ranged 0-37% for point)."]
-    lines += ["", "![Fig 10](al/fig10.png) ![Fig 11](al/fig11.png)",
+                          for k, v in knocks.items()) + " (with the earlier geometry -- palm "
+              "1 cm above the object, home beside the right object, 26-50 g objects: 52% at "
+              "sigma 0.3).", "",
+              "Where we miss: see the goals in the table (README, \"Action learner\", has "
+              "the measured levers). Point: the greedy actor comes to rest (L1 range ~0) but "
+              "at a fixed point biased away from the stored pose (median final L1 above); "
+              "the precision the criterion asks (about 2 degrees a joint) is not reached with "
+              "9 tasks interleaved, nor by 1200 episodes. Touch and push: most failures "
+              "still move a wrong object, now from the learner's own paths rather than from "
+              "exploration; touch is also held back by its reward, which penalizes touching "
+              "the target (-0.3), so hovering beside it scores better."]
+    lines += ["", "![success against episodes](al/success_curve.png)",
+              "![Fig 10](al/fig10.png) ![Fig 11](al/fig11.png)",
               "![Fig 13](al/fig13.png)"]
     if "fig14" in al:
         lines += ["![Fig 14, no tricks](al/fig14.png) "

@@ -11,6 +11,8 @@ import pytest
 from grounding_jax import al, al_experiments, cacla
 
 SMALL = al.ALConfig(phase1_episodes=2, phase2_episodes=2)
+#: measured on test_point_left_is_learned: 144 of 144 episodes (L1 median 0.080, untrained 2.75)
+MIN_SUCCESS = 0.75
 
 
 @pytest.fixture(scope="module")
@@ -65,23 +67,27 @@ def test_schedules_are_configs():
     assert (nt.phase1_episodes, nt.episodes) == (0, 2000)
 
 
-def test_point_left_is_learned_to_the_success_criterion():
-    # The paper's schedule (150 phase-1 + 300 phase-2 episodes) on one task, 4 agents; the
-    # greedy actor is judged by the issue's point criterion (final L1 < 0.1) from home, in 6
-    # layouts each. Measured: 12 of 24 episodes succeed (untrained: 0); asserted >= 6.
+def test_point_left_is_learned():
+    # The paper's schedule (150 phase-1 + 300 phase-2 episodes) on one task, 4 agents, the
+    # shipped hyperparameters (TUNED, actor lr decaying to TUNED_DECAY); the greedy actor is
+    # judged in 100-step episodes from home on all 36 layouts by the full point criterion
+    # (final L1 < 0.1, at rest, nothing knocked). See MIN_SUCCESS for what was measured.
     cfg = al.ALConfig(phase1_episodes=150, phase2_episodes=300, actions=(0,), positions=(0,),
                       random_layout=False)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(sigma=0.3, actor_lr=0.01, critic_lr=0.01, gamma=0.5))
+    hp = al.ALHyper(cacla=cacla.CaclaHyper(**al_experiments.TUNED),
+                    **al_experiments.TUNED_DECAY)
     keys = jax.random.split(jax.random.key(0), 4)
     trained, m = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))(keys, hp)
     untrained = jax.vmap(lambda k: al.schedule(k, cfg)[0])(keys)
-    success = al_experiments.make_success(cfg.env)
-    point_left = (np.asarray(al_experiments.all_tasks().action) == 0) & (
-        np.asarray(al_experiments.all_tasks().position) == 0)
-    after = np.asarray(success(trained, jax.random.key(1))["success"])[..., point_left]
-    before = np.asarray(success(untrained, jax.random.key(1))["success"])[..., point_left]
-    assert before.sum() == 0
-    assert after.sum() >= 6, after
+    success = al_experiments.make_success(cfg.env, actions=(0,))
+    left = np.asarray(success(trained, jax.random.key(1))["position"]) == 0
+    after = jax.device_get(success(trained, jax.random.key(1)))
+    before = jax.device_get(success(untrained, jax.random.key(1)))
+    l1_after = np.median(after["final_point_l1"][..., left])
+    l1_before = np.median(before["final_point_l1"][..., left])
+    assert before["success"][..., left].sum() == 0
+    assert l1_after < 0.25 * l1_before
+    assert after["success"][..., left].mean() >= MIN_SUCCESS
     # the training episodes' returns improved too
     ret = np.asarray(m["return"])
     assert ret[:, -50:].mean() > ret[:, :50].mean() + 20
