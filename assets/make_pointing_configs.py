@@ -15,11 +15,13 @@ exactly. The JSON records both angles (``aim_deg`` for the palm, ``finger_aim_de
 
 Search: random joint samples within the model's limits, then a local random search from the
 best ones (deterministic: fixed seed). Run once, from the repository root:
-``python assets/make_pointing_configs.py``
+``python assets/make_pointing_configs.py [--distance 0.08 0.15] [--clearance 0.04]
+[--path-clearance 0.03]`` (the values are checked before the search starts).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import pathlib
 import sys
@@ -51,6 +53,31 @@ def _paths(q: np.ndarray) -> list[np.ndarray]:
     return straight + clipped
 
 
+#: accepted ranges (metres) of the command-line settings
+LIMITS = {"distance": (0.03, 0.30), "clearance": (0.0, 0.10), "path_clearance": (0.0, 0.10)}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The settings, checked: a bad one exits naming the option and its accepted range."""
+    ap = argparse.ArgumentParser(prog="python assets/make_pointing_configs.py")
+    ap.add_argument("--distance", type=float, nargs=2, default=DISTANCE, metavar=("MIN", "MAX"),
+                    help="palm-to-object distance range, metres")
+    ap.add_argument("--clearance", type=float, default=CLEARANCE,
+                    help="arm-to-object clearance at the pose, metres")
+    ap.add_argument("--path-clearance", type=float, default=PATH_CLEARANCE,
+                    help="arm-to-object clearance on the way from home, metres")
+    args = ap.parse_args(argv)
+    for name, (lo, hi) in LIMITS.items():
+        values = getattr(args, name)
+        for v in np.atleast_1d(values):
+            if not (np.isfinite(v) and lo <= v <= hi):
+                ap.error(f"--{name.replace('_', '-')}: {float(v)} is outside the accepted range "
+                         f"[{lo}, {hi}] m")
+    if args.distance[0] >= args.distance[1]:
+        ap.error(f"--distance: MIN must be below MAX, got {list(args.distance)}")
+    return args
+
+
 def _cost(q: np.ndarray, target: np.ndarray) -> tuple[float, dict]:
     tip, direction = ik.palm_ray(q)
     to_obj = target - tip
@@ -71,7 +98,11 @@ def _cost(q: np.ndarray, target: np.ndarray) -> tuple[float, dict]:
     return aim + HOME_WEIGHT * home + 1e4 * bad, info
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    global DISTANCE, CLEARANCE, PATH_CLEARANCE
+    args = parse_args(argv)
+    DISTANCE, CLEARANCE = tuple(args.distance), args.clearance
+    PATH_CLEARANCE = args.path_clearance
     idx = scene.index()
     lo, hi = idx.joint_range[:, 0], idx.joint_range[:, 1]
     rng = np.random.default_rng(0)

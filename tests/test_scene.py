@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import pathlib
 
 import mujoco
 import numpy as np
@@ -114,3 +116,20 @@ def test_eye_camera_sees_the_objects():
         assert local[2] < 0
         assert abs(local[1] / -local[2]) < half  # inside the vertical field of view
         assert abs(local[0] / -local[2]) < half * 4 / 3  # 320x240 aspect
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["--distance", "0.2", "0.1"], "--distance"),
+    (["--distance", "0.01", "0.1"], "--distance"),
+    (["--clearance", "-1"], "--clearance"),
+    (["--path-clearance", "nan"], "--path-clearance"),
+])
+def test_pointing_pose_settings_are_checked_before_the_search(argv, option, capsys):
+    spec = importlib.util.spec_from_file_location(
+        "make_pointing_configs", pathlib.Path(__file__).parents[1] / "assets"
+        / "make_pointing_configs.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    with pytest.raises(SystemExit) as e:
+        mod.main(argv)
+    assert e.value.code == 2 and option in capsys.readouterr().err
