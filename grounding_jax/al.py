@@ -19,7 +19,7 @@ from flax import struct
 
 from grounding_jax import cacla, scene
 from grounding_jax._checks import require_int
-from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task
+from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task, scale_joints
 
 #: (phase-1 episodes, phase-2 episodes)
 SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
@@ -83,6 +83,16 @@ class ALHyper:
     ``actor_units`` / ``critic_units``: hidden units in use, at most the config's sizes (0: all
     of them); the rest stay at zero weights (:func:`cacla.init`), so a sweep over hidden sizes
     runs as one batch at the largest size.
+
+    ``executed_target``: 1.0 -- the actor is pulled toward the action the arm executed (the
+    explored action after the servo target is clipped at the joint limits, and limited to the
+    actor's range [-1, 1]); 0.0 -- toward the explored action itself (the paper). At a joint
+    limit the explored action has no effect, so the paper's rule can drive the actor's output
+    into the limit and saturate it there, where its tanh gradient is too small to come back.
+
+    ``actor_init_scale``: factor on the actor's initial output weights (1.0: the usual
+    +-1/sqrt(fan-in)); smaller values start from near-zero actions -- the paper's suggestion
+    for a smoother approach to the goal.
     """
 
     cacla: cacla.CaclaHyper = cacla.CaclaHyper()
@@ -92,6 +102,8 @@ class ALHyper:
     sigma_decay: Any = 1.0
     actor_units: Any = 0
     critic_units: Any = 0
+    actor_init_scale: Any = 1.0
+    executed_target: Any = 0.0
 
 
 def validate(hp: ALHyper) -> ALHyper:
@@ -104,6 +116,14 @@ def validate(hp: ALHyper) -> ALHyper:
             arr = np.asarray(v, dtype=float)
             if not np.all(np.isfinite(arr)) or not np.all((arr > 0) & (arr <= 1)):
                 raise ValueError(f"{name}: must be in (0, 1], got {v!r}")
+    v = hp.actor_init_scale
+    if not isinstance(v, jax.core.Tracer):
+        arr = np.asarray(v, dtype=float)
+        if not np.all(np.isfinite(arr)) or not np.all(arr > 0):
+            raise ValueError(f"actor_init_scale: must be > 0, got {v!r}")
+    v = hp.executed_target
+    if not isinstance(v, jax.core.Tracer) and not np.all(np.isin(np.asarray(v), (0, 1))):
+        raise ValueError(f"executed_target: must be 0 or 1, got {v!r}")
     for name in ("actor_units", "critic_units"):
         v = getattr(hp, name)
         if not isinstance(v, jax.core.Tracer):
@@ -111,6 +131,12 @@ def validate(hp: ALHyper) -> ALHyper:
             if not np.all(arr >= 0) or not np.all(arr == np.round(arr)):
                 raise ValueError(f"{name}: must be an integer >= 0 (0: all units), got {v!r}")
     return hp
+
+
+def executed_action(q: jax.Array, ctrl: jax.Array, action_scale) -> jax.Array:
+    """The action the arm executed: the servo target ``ctrl`` (radians, after clipping at the
+    joint limits) relative to the joints ``q``, in action units, limited to [-1, 1]."""
+    return jnp.clip((scale_joints(ctrl) - scale_joints(q)) / action_scale, -1.0, 1.0)
 
 
 def make_episodes(config: ALConfig):
@@ -145,8 +171,11 @@ def make_episodes(config: ALConfig):
             agent, state = carry
             a, _ = cacla.act(agent, state.obs, k, chp)
             nxt = env.step(state, a, hp.env)
-            tr = cacla.Transition(obs=state.obs, action=a, reward=nxt.reward, next_obs=nxt.obs,
-                                  done=nxt.done, prev_reward=state.reward)
+            target = jnp.where(hp.executed_target > 0.5,
+                               executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
+                                               hp.env.action_scale), a)
+            tr = cacla.Transition(obs=state.obs, action=target, reward=nxt.reward,
+                                  next_obs=nxt.obs, done=nxt.done, prev_reward=state.reward)
             new, info = cacla.update(agent, tr, chp, config.cacla)
             live = ~state.done  # steps after the episode ended change nothing
             agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
@@ -189,6 +218,7 @@ def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
     agent = cacla.init(k_init, c,
                        jnp.where(hp.actor_units > 0, hp.actor_units, c.actor_hidden),
                        jnp.where(hp.critic_units > 0, hp.critic_units, c.critic_hidden))
+    agent = agent.replace(actor=agent.actor.replace(w2=agent.actor.w2 * hp.actor_init_scale))
     return agent, jax.random.split(k_eps, config.episodes), plan
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+import sys
 import time
 
 import jax
@@ -588,3 +589,101 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
         {k: res[k] for k in ("seeds", "phase1", "phase2", "hyper", "random_start_noise",
                              "success")}, indent=1) + "\n")
     return res, agents
+
+
+# ------------------------------------------------------------------- the point tail (lever)
+def point_tail(agents: cacla.Agent, env_params: EnvParams = DEFAULT_PARAMS,
+               env_config: EnvConfig = DEFAULT_ENV, last: int = 20,
+               layouts: tuple[int, ...] = ALL_LAYOUTS) -> np.ndarray:
+    """L1 to the pointing pose over the last ``last`` of ``EVAL_STEPS`` greedy steps of every
+    point task from home, ``[agents, 3 positions x layouts, last]`` (``env_params`` leaves
+    shared or per agent)."""
+    evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=EVAL_STEPS))
+    tasks = all_tasks(layouts)
+    keep = np.asarray(tasks.action) == 0
+    tasks = jax.tree.map(lambda x: x[keep], tasks)
+    axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, env_params)
+
+    @jax.jit
+    def run(agents, params):
+        def one(agent, task, p):
+            return evaluate(agent, jax.random.key(0), task, p)[1].metrics["point_l1"][-last:]
+        return jax.vmap(jax.vmap(one, in_axes=(None, 0, None)), in_axes=(0, None, axes))(
+            agents, tasks, params)
+
+    return np.asarray(run(agents, env_params))
+
+
+def point_tail_figure(tails: dict[str, np.ndarray], out, name: str = "point_tail") -> dict:
+    """Figure: L1 over the last steps of the point episodes, one panel per labelled set of
+    agents (``tails`` from :func:`point_tail`), median and quartiles over all episodes, and
+    the share of episodes that end still (L1 range over the last ``STILL_LAST`` steps <
+    ``POINT_STILL``) and close (final L1 < ``POINT_L1``)."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(tails), figsize=(4.2 * len(tails), 3.3), sharey=True)
+    axes = np.atleast_1d(axes)
+    data = {}
+    for ax, (label, t) in zip(axes, tails.items(), strict=True):
+        flat = t.reshape(-1, t.shape[-1])
+        steps = np.arange(EVAL_STEPS - t.shape[-1] + 1, EVAL_STEPS + 1)
+        q25, q50, q75 = np.quantile(flat, [0.25, 0.5, 0.75], axis=0)
+        ax.fill_between(steps, q25, q75, alpha=0.3)
+        ax.plot(steps, q50, lw=2, label="median")
+        for row in flat[:: max(1, len(flat) // 12)]:
+            ax.plot(steps, row, lw=0.5, color="grey", alpha=0.6)
+        ax.axhline(POINT_L1, color="k", ls=":", lw=0.8)
+        still = np.ptp(flat[:, -STILL_LAST:], axis=1) < POINT_STILL
+        close = flat[:, -1] < POINT_L1
+        data[label] = {"episodes": len(flat), "still": float(still.mean()),
+                       "close": float(close.mean()), "final_l1_median": float(q50[-1]),
+                       "final_l1_q75": float(q75[-1])}
+        ax.set(title=f"{label}\nstill {still.mean():.0%}, L1 < {POINT_L1} {close.mean():.0%}",
+               xlabel="step", yscale="log")
+    axes[0].set_ylabel("L1 to the pointing pose (scaled)")
+    fig.suptitle("point from home: the last steps of every greedy episode (band: quartiles; "
+                 "grey: some episodes; dotted: the criterion)", fontsize=9)
+    fig.tight_layout()
+    write_figure(out, name, data, fig)
+    return data
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m grounding_jax.al_experiments point-tail SWEEP.toml``: the point-tail figure
+    of an AL sweep's base point and the points that change one named field (default:
+    ``executed_target``), from the sweep's checkpoints, into the sweep's folder."""
+    import argparse
+
+    from grounding_jax import sweep
+
+    ap = argparse.ArgumentParser(prog="python -m grounding_jax.al_experiments")
+    ap.add_argument("command", choices=["point-tail"])
+    ap.add_argument("file", help="the AL sweep file, e.g. sweeps/al_tuning.toml")
+    ap.add_argument("--out", default="results/sweeps", help="where the sweep was run")
+    ap.add_argument("--field", default="executed_target",
+                    help="the grid field whose points are compared with the base")
+    args = ap.parse_args(argv)
+    try:
+        spec = sweep.load_spec(args.file)
+        if args.field not in spec.grid:
+            raise sweep.SweepError(f"--field: {args.field!r} is not a grid field of "
+                                   f"{args.file}; grid fields: {list(spec.grid)}")
+        found = sweep.trained_agents(spec, args.out)
+    except (sweep.SweepError, RuntimeError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    pts = spec.points()
+    env_config = sweep._module_config(spec, spec.groups()[0][0]).env
+    tails = {}
+    for i, (episode, agents, hp) in enumerate(found):
+        label = sweep.point_label(spec, {k: pts[i][k] for k in spec.grid})
+        if i == 0 or label.startswith(f"{args.field}="):
+            tails[f"{label} ({episode} episodes)"] = point_tail(agents, hp.env, env_config)
+    data = point_tail_figure(tails, pathlib.Path(args.out) / spec.name)
+    for label, d in data.items():
+        print(f"{label}: still {d['still']:.0%}, final L1 < {POINT_L1} {d['close']:.0%}, "
+              f"median final L1 {d['final_l1_median']:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

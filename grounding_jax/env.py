@@ -221,6 +221,7 @@ class Env:
         self.config = config
         idx = scene.index()
         self._idx = idx
+        self.arm_qpos = jnp.asarray(idx.arm_qpos)  # qpos addresses of the 4 arm joints
         self._physics_step, self._physics_forward = physics.make_physics(
             config.backend, config.substeps)
         self._qpos_home = jnp.asarray(scene.home_qpos(), jnp.float32)

@@ -54,7 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, physics, tl, tl_data
+from grounding_jax import al, al_experiments, cacla, physics, tl, tl_data
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.checkpoint import Checkpointer, CheckpointError
 from grounding_jax.env import EnvConfig, EnvParams
@@ -112,6 +112,8 @@ FIELDS: dict[str, dict[str, Field]] = {
         "actor_lr_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
         "critic_lr_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
         "sigma_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
+        "actor_init_scale": Field("traced", float, 1.0, "> 0", _pos),
+        "executed_target": Field("traced", int, 0, "0 or 1", lambda v: v in (0, 1)),
         "action_scale": Field("traced", float, _EP.action_scale, "> 0", _pos),
         "touch_other_penalty": Field("traced", float, _EP.touch_other_penalty),
         "touch_target_penalty": Field("traced", float, _EP.touch_target_penalty),
@@ -136,7 +138,12 @@ METRICS = {
     "al": {"td_error": "critic's RMS TD error per episode",
            "final_reward": "reward at the episode's last step",
            "return": "sum of rewards over the episode",
-           "final_point_l1": "L1 distance to the pointing pose at the episode's end"},
+           "final_point_l1": "L1 distance to the pointing pose at the episode's end",
+           # evaluated at ``eval_at`` episodes (the greedy actor, the issue's criteria):
+           **{f"success_{k}": f"success rate: {v}" for k, v in (
+               ("point", "point from home"), ("touch", "touch from home"),
+               ("push", "push from home"), ("rand_point", "point from random starts"),
+               ("mean", "mean of point, touch, push and random-start point"))}},
     "tl": {"test_acc": "test accuracy", "train_acc": "training accuracy",
            "test_rmse": "test RMSE per output unit", "train_rmse": "training RMSE"},
 }
@@ -144,7 +151,12 @@ METRICS = {
 LOWER_IS_BETTER = frozenset({"td_error", "final_point_l1", "test_rmse", "train_rmse"})
 TOP_KEYS = {"name": str, "module": str, "figure": str, "title": str, "description": str,
             "seeds": int, "metric": str, "x": str, "chunk": int, "seed": int, "paper": str,
-            "params": dict, "grid": dict}
+            "params": dict, "grid": dict, "eval_at": list, "design": str}
+#: how a grid becomes points: every combination, or one field at a time around a base point
+DESIGNS = ("product", "axes")
+#: the random starts of the success evaluation are drawn from this fixed key -- the same
+#: evaluation set for every run and sweep, as a test set is
+EVAL_SEED = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,11 +177,26 @@ class SweepSpec:
     source: str = "<dict>"
     description: str = ""
     paper: str = ""
+    eval_at: tuple[int, ...] = ()
+    design: str = "product"
+
+    def evaluations(self) -> tuple[int, ...]:
+        """Episode counts at which AL success rates are measured: ``eval_at`` plus the end,
+        or none when neither ``eval_at`` nor a ``success_*`` metric asks for them."""
+        if self.module != "al" or not (self.eval_at or self.metric.startswith("success_")):
+            return ()
+        p = self.points()[0]
+        return tuple(sorted(set(self.eval_at) | {p["phase1_episodes"] + p["phase2_episodes"]}))
 
     def points(self) -> list[dict[str, Any]]:
-        """Every grid combination, as a full assignment of the module's fields."""
+        """The grid's points, as full assignments of the module's fields: every combination
+        (``design = "product"``), or (``"axes"``) the base point -- each grid field at its
+        first value -- then each field's other values, one field changed at a time."""
         base = {k: f.default for k, f in FIELDS[self.module].items()} | self.params
         keys = list(self.grid)
+        if self.design == "axes":
+            centre = base | {k: self.grid[k][0] for k in keys}
+            return [centre] + [centre | {k: v} for k in keys for v in self.grid[k][1:]]
         return [base | dict(zip(keys, combo, strict=True))
                 for combo in itertools.product(*(self.grid[k] for k in keys))]
 
@@ -259,12 +286,29 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
     x = data.get("x", next(iter(grid)))
     if x not in grid:
         raise _err(source, "x", f"{x!r} is not a grid field; grid fields: {list(grid)}")
+    design = data.get("design", "product")
+    if design not in DESIGNS:
+        raise _err(source, "design", f"unknown value {design!r}; accepted values: {DESIGNS}")
+    eval_at = data.get("eval_at", [])
+    if eval_at and module != "al":
+        raise _err(source, "eval_at", "only AL sweeps evaluate success rates")
+    if not all(isinstance(e, int) and not isinstance(e, bool) and e >= 1 for e in eval_at):
+        raise _err(source, "eval_at", f"must be a list of episode counts >= 1, got {eval_at!r}")
     name = data.get("name", pathlib.Path(source).stem if source != "<dict>" else "sweep")
     spec = SweepSpec(name=name, module=module, figure=data.get("figure", name),
                      title=data.get("title", name), seeds=seeds, metric=metric, x=x,
                      chunk=chunk, seed=data.get("seed", 0), params=params, grid=grid,
                      source=source, description=data.get("description", ""),
-                     paper=data.get("paper", ""))
+                     paper=data.get("paper", ""), eval_at=tuple(sorted(set(eval_at))),
+                     design=design)
+    if module == "al" and (eval_at or metric.startswith("success_")):
+        lengths = {p["phase1_episodes"] + p["phase2_episodes"] for p in spec.points()}
+        if len(lengths) > 1:
+            raise _err(source, "grid", "success evaluation needs one episode count for all "
+                                       f"points; phase1/phase2_episodes give {sorted(lengths)}")
+        if eval_at and max(eval_at) > min(lengths):
+            raise _err(source, "eval_at", f"{max(eval_at)} is past the run's {min(lengths)} "
+                                          "episodes; accepted: 1..episodes")
     for static, _ in spec.groups():  # the module's own checks (cross-field rules)
         try:
             _module_config(spec, static)
@@ -351,7 +395,8 @@ def _hyper(spec: SweepSpec, rows: list[dict]):
                       actor_units=_column(rows, "actor_hidden", jnp.int32),
                       critic_units=_column(rows, "critic_hidden", jnp.int32),
                       **{k: _column(rows, k, f32) for k in
-                         ("actor_lr_decay", "critic_lr_decay", "sigma_decay")})
+                         ("actor_lr_decay", "critic_lr_decay", "sigma_decay",
+                          "actor_init_scale", "executed_target")})
 
 
 def _batch_sharding(batch: int):
@@ -408,10 +453,7 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
     ck = None
     if out is not None:
         try:
-            ck = Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
-                              {"spec": spec.to_json(), "group": group, "static": static,
-                               "rows": rows.tolist(), "devices": jax.local_device_count(),
-                               "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
+            ck = _checkpointer(spec, group, run_keys, out)
         except CheckpointError as e:
             raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
                                   "starts over") from None
@@ -423,13 +465,80 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
         def report(units: int) -> None:
             progress(units * len(rows) // (len(rows) + pad))
     if spec.module == "al":
-        metrics, params = _run_al(cfg, keys, hp, spec.chunk, sharding, ck, report)
+        metrics, params = _run_al(cfg, keys, hp, spec.chunk, sharding, ck, report,
+                                  spec.evaluations())
     else:
         metrics, params = _run_tl(cfg, keys, hp, sharding, ck, report)
     metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
     finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
                            len(rows)) & _finite_rows(metrics, len(rows)))
     return {"metrics": metrics, "finite": finite, "rows": rows}
+
+
+def _checkpointer(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path
+                  ) -> Checkpointer:
+    static, idx = spec.groups()[group]
+    rows = [p * spec.seeds + s for p in idx for s in range(spec.seeds)]
+    return Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
+                        {"spec": spec.to_json(), "group": group, "static": static,
+                         "rows": rows, "devices": jax.local_device_count(),
+                         "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
+
+
+def _al_saved_like(cfg: al.ALConfig, keys: jax.Array, n_evals: int) -> dict:
+    """The structure of an AL group's checkpoint (shapes only)."""
+    n = keys.shape[0]
+    like_agents = jax.eval_shape(lambda k: jax.vmap(lambda kk: al.schedule(kk, cfg)[0])(k),
+                                 keys)  # shapes only: the units in use do not change them
+    like_m = jax.eval_shape(lambda k: jax.vmap(al.make_train(
+        dataclasses.replace(cfg, phase1_episodes=0, phase2_episodes=1)),
+        in_axes=(0, None))(k, al.ALHyper())[1], keys)
+    like_m = {k: jax.ShapeDtypeStruct((n, cfg.episodes), v.dtype) for k, v in like_m.items()}
+    evals = np.zeros((len(al_experiments.SUCCESS_METRICS), n, n_evals), np.float32)
+    return {"agents": like_agents, "metrics": like_m, "keys": keys, "episode": np.int64(0),
+            "evals": evals}
+
+
+def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
+                   seed: int | None = None):
+    """The AL agents of a finished (or interrupted) sweep, from its checkpoints.
+
+    Args:
+        spec: the sweep, as it was run.
+        out: the parent folder it was run under.
+        seed: the seed it was run with, if not ``spec.seed``.
+
+    Returns:
+        A list with, per point (``spec.points()`` order): ``(episode, agents [seeds],
+        hp)`` -- the latest checkpointed episode of its group, its runs' agents and their
+        hyperparameters (``al.ALHyper``, one row per run).
+    """
+    if spec.module != "al":
+        raise SweepError(f"{spec.source}: module: trained_agents reads AL sweeps, not "
+                         f"{spec.module!r}")
+    spec = spec if seed is None else dataclasses.replace(spec, seed=seed)
+    n_pts = len(spec.points())
+    run_keys = np.asarray(jax.random.key_data(
+        jax.random.split(jax.random.key(spec.seed), n_pts * spec.seeds)))
+    folder = pathlib.Path(out) / spec.name
+    found: dict[int, tuple] = {}
+    for g, (static, idx) in enumerate(spec.groups()):
+        ck = _checkpointer(spec, g, run_keys, folder)
+        if ck.latest_step() is None:
+            raise CheckpointError(f"{ck.directory}: no checkpoint; run the sweep first")
+        rows = [p * spec.seeds + s for p in idx for s in range(spec.seeds)]
+        keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
+        sharding, pad = _batch_sharding(len(rows))
+        keys = _pad(keys, pad)
+        cfg = _module_config(spec, static)
+        step = ck.latest_step()
+        saved = ck.restore(step, _al_saved_like(cfg, keys, len(spec.evaluations())))
+        ck.close()
+        for j, p in enumerate(idx):
+            take = slice(j * spec.seeds, (j + 1) * spec.seeds)
+            found[p] = (step, jax.tree.map(lambda x, t=take: x[t], saved["agents"]),
+                        _hyper(spec, [spec.points()[p]] * spec.seeds))
+    return [found[p] for p in range(n_pts)]
 
 
 def chunk_stops(episodes: int, chunk: int) -> list[int]:
@@ -442,36 +551,43 @@ def chunk_stops(episodes: int, chunk: int) -> list[int]:
     return list(range(size, episodes, size)) + [episodes]
 
 
-def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress):
-    stops = chunk_stops(cfg.episodes, chunk)
+def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress,
+            evaluations: tuple[int, ...] = ()):
+    """Train a group in chunks; at each of ``evaluations`` (episode counts) the success rates
+    of every run are measured (the evaluation hook) and returned as metrics
+    ``success_<name>`` ``[runs, len(evaluations)]``."""
+    stops = sorted(set(chunk_stops(cfg.episodes, chunk)) | set(evaluations))
     start = None
     n = keys.shape[0]
+    names = al_experiments.SUCCESS_METRICS
+    evals = np.full((len(names), n, len(evaluations)), np.nan, np.float32)
+    rates = al_experiments.make_success_rates(cfg.env) if evaluations else None
     if ck is not None and ck.latest_step() is not None:
-        like_agents = jax.eval_shape(lambda k: jax.vmap(lambda kk: al.schedule(kk, cfg)[0])(k),
-                                     keys)  # shapes only: the units in use do not change them
-        like_m = jax.eval_shape(lambda k: jax.vmap(al.make_train(
-            dataclasses.replace(cfg, phase1_episodes=0, phase2_episodes=1)),
-            in_axes=(0, None))(k, al.ALHyper())[1], keys)
-        like_m = {k: jax.ShapeDtypeStruct((n, cfg.episodes), v.dtype) for k, v in like_m.items()}
         step = ck.latest_step()
-        saved = ck.restore(step, {"agents": like_agents, "metrics": like_m,
-                                  "keys": keys, "episode": np.int64(0)})
+        saved = ck.restore(step, _al_saved_like(cfg, keys, len(evaluations)))
         if not np.array_equal(jax.random.key_data(saved["keys"]), jax.random.key_data(keys)):
             raise CheckpointError(f"{ck.directory}: stored run keys differ from this run's")
         start = (int(saved["episode"]), saved["agents"], saved["metrics"])
+        evals = np.asarray(saved["evals"], np.float32)
         if progress:
             progress(n * start[0])
     done = [start[0] if start else 0]
 
     def on_stop(episode, agents, metrics):
+        if episode in evaluations:
+            r = rates(agents, jax.random.key(EVAL_SEED), hp.env)
+            for i, k in enumerate(names):
+                evals[i, :, evaluations.index(episode)] = r[k]
         if ck is not None:
             ck.save(episode, {"agents": agents, "metrics": metrics, "keys": keys,
-                              "episode": np.int64(episode)})
+                              "episode": np.int64(episode), "evals": evals})
         if progress:
             progress(n * (episode - done[0]))
         done[0] = episode
 
     agents, metrics = al.train_in_chunks(cfg, keys, hp, stops, on_stop, start, sharding)
+    if evaluations:
+        metrics = {**metrics, **{f"success_{k}": evals[i] for i, k in enumerate(names)}}
     return metrics, agents
 
 
@@ -496,7 +612,10 @@ def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarr
     """Per run value of the plotted metric, per point mean/std over the finite runs, and the
     learning curves (AL)."""
     n_pts = len(spec.points())
-    if spec.module == "al":
+    if spec.metric.startswith("success_"):  # [runs, evaluations]: the last one counts
+        curve, window = metrics[spec.metric], None
+        value = curve[:, -1]
+    elif spec.module == "al":
         curve = metrics[spec.metric]  # [runs, episodes]
         window = max(1, curve.shape[1] // 10)
         value = curve[:, -window:].mean(1)
@@ -520,23 +639,47 @@ def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarr
     if curve is not None:
         c = np.asarray(curve, np.float64).reshape(n_pts, spec.seeds, -1)
         out["curves"] = [np.where(ok[i][:, None], c[i], np.nan).tolist() for i in range(n_pts)]
+    if spec.evaluations():
+        out["evaluations"] = list(spec.evaluations())
+        final = {k: np.asarray(metrics[f"success_{k}"])[:, -1].reshape(n_pts, spec.seeds)
+                 for k in al_experiments.SUCCESS_METRICS}
+        out["success"] = [{"point": p["point"], "rates": {
+            k: {"median": float(np.median(v[i])), "min": float(v[i].min()),
+                "max": float(v[i].max()), "runs": v[i].tolist()} for k, v in final.items()}}
+            for i, p in enumerate(pts)]
     return out
 
 
 def _write_csv(path: pathlib.Path, spec: SweepSpec, summary: dict) -> None:
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow([*spec.grid, "seed", spec.metric, "diverged"])
-    for p in summary["points"]:
+    names = [f"success_{k}" for k in al_experiments.SUCCESS_METRICS] if "success" in summary \
+        else []
+    names = [k for k in names if k != spec.metric]
+    w.writerow([*spec.grid, "seed", spec.metric, "diverged", *names])
+    for i, p in enumerate(summary["points"]):
         for s, v in enumerate(p["runs"]):
-            w.writerow([*p["point"].values(), s, v, int(s in p["diverged"])])
+            extra = [summary["success"][i]["rates"][k[len("success_"):]]["runs"][s]
+                     for k in names]
+            w.writerow([*p["point"].values(), s, v, int(s in p["diverged"]), *extra])
     atomic_write_text(path, buf.getvalue())
+
+
+def point_label(spec: SweepSpec, point: dict) -> str:
+    """A point's name in figures and tables: its grid values, or for an ``axes`` design the
+    one field that differs from the base point (``"base"`` for the base itself)."""
+    if spec.design == "axes":
+        centre = {k: v[0] for k, v in spec.grid.items()}
+        changed = [f"{k}={v}" for k, v in point.items() if v != centre[k]]
+        return ", ".join(changed) or "base"
+    return ", ".join(f"{k}={v}" for k, v in point.items())
 
 
 def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
     plt = pyplot()
     curves = "curves" in summary
-    fig, axes = plt.subplots(1, 2 if curves else 1, figsize=(11 if curves else 5.5, 3.6))
+    height = max(3.6, 0.3 * len(summary["points"])) if spec.design == "axes" else 3.6
+    fig, axes = plt.subplots(1, 2 if curves else 1, figsize=(11 if curves else 5.5, height))
     axes = np.atleast_1d(axes)
     label = METRICS[spec.module][spec.metric]
     others = [k for k in spec.grid if k != spec.x]
@@ -545,18 +688,35 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
         ax = axes[0]
         for p, c in zip(summary["points"], summary["curves"], strict=True):
             c = np.asarray(c, float)
-            if np.isfinite(c).any():
-                mean = np.nanmean(c, 0)
-                k = max(1, mean.size // 25)  # bins of k episodes
-                bins = mean[: mean.size // k * k].reshape(-1, k).mean(1)
-                ax.plot(np.arange(bins.size) * k + k / 2, bins,
-                        label=", ".join(f"{key}={v}" for key, v in p["point"].items()))
+            name = point_label(spec, p["point"])
+            if not np.isfinite(c).any():
+                continue
+            if spec.metric.startswith("success_"):  # measured at the evaluation episodes
+                ax.plot(summary["evaluations"], np.nanmedian(c, 0), marker="o", label=name)
+                continue
+            mean = np.nanmean(c, 0)
+            k = max(1, mean.size // 25)  # bins of k episodes
+            bins = mean[: mean.size // k * k].reshape(-1, k).mean(1)
+            ax.plot(np.arange(bins.size) * k + k / 2, bins, label=name)
+        stat = "median" if spec.metric.startswith("success_") else "mean"
         ax.set(xlabel="episode", ylabel=spec.metric,
-               title=f"learning curves, mean over seeds\n({label})")
+               title=f"learning curves, {stat} over seeds\n({label})")
         ax.legend(fontsize=7)
     ax = axes[-1]
+    window = (f"mean of the last {summary['window']} episodes" if summary.get("window")
+              else "after training")
+    if spec.design == "axes":  # one row per point, the base on top
+        ps = summary["points"]
+        ys = np.arange(len(ps))[::-1]
+        ax.errorbar([np.nan if p["mean"] is None else p["mean"] for p in ps], ys,
+                    xerr=[0 if p["std"] is None else p["std"] for p in ps], fmt="o",
+                    capsize=3)
+        ax.set_yticks(ys, [point_label(spec, p["point"]) for p in ps], fontsize=7)
+        ax.set(xlabel=spec.metric, title=f"{label}, {window}\n(mean ± std over "
+                                         f"{spec.seeds} seeds; one field changed at a time)")
+        others = []
     groups: dict[tuple, list[dict]] = {}
-    for p in summary["points"]:
+    for p in summary["points"] if spec.design != "axes" else []:
         groups.setdefault(tuple(p["point"][k] for k in others), []).append(p)
     for key, ps in groups.items():
         ps = [p for p in ps if p["mean"] is not None]
@@ -565,12 +725,11 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
                     label=", ".join(f"{k}={v}" for k, v in zip(others, key, strict=True))
                     or None)
     positive = all(isinstance(v, (int, float)) and v > 0 for v in xs)
-    if positive and max(xs) / min(xs) >= 100:
-        ax.set_xscale("log")
-    window = (f"mean of the last {summary['window']} episodes" if summary.get("window")
-              else "after training")
-    ax.set(xlabel=spec.x, ylabel=spec.metric,
-           title=f"{label}, {window}\n(mean ± std over {spec.seeds} seeds)")
+    if spec.design != "axes":
+        if positive and max(xs) / min(xs) >= 100:
+            ax.set_xscale("log")
+        ax.set(xlabel=spec.x, ylabel=spec.metric,
+               title=f"{label}, {window}\n(mean ± std over {spec.seeds} seeds)")
     if others:
         ax.legend(fontsize=7)
     lengths = sorted({p["phase1_episodes"] + p["phase2_episodes"] if spec.module == "al"
@@ -712,6 +871,10 @@ def main(argv: list[str] | None = None) -> int:
         mean = "diverged" if p["mean"] is None else f"{p['mean']:.4g} ± {p['std']:.2g}"
         flag = f"  ({len(p['diverged'])} diverged)" if p["diverged"] else ""
         print(f"{p['point']}: {spec.metric} {mean}{flag}")
+    for p in summary.get("success", []):
+        print(f"{p['point']}: success of the median run at episode "
+              f"{summary['evaluations'][-1]}: " + ", ".join(
+                  f"{k} {p['rates'][k]['median']:.2f}" for k in al_experiments.SUCCESS_METRICS))
     print(f"wrote {folder}/ (sweep.json, runs.csv, {spec.figure}.png) in "
           f"{summary['wall_s']:.1f} s")
     return 0

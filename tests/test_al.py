@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from grounding_jax import al, al_experiments, cacla
+from grounding_jax import al, al_experiments, cacla, scene
+from grounding_jax import env as env_mod
 
 SMALL = al.ALConfig(phase1_episodes=2, phase2_episodes=2)
 #: measured on test_point_left_is_learned: 144 of 144 episodes (L1 median 0.080, untrained 2.75)
@@ -55,10 +56,29 @@ def test_vmapped_agents_equal_separate_runs(small_train):
     (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=-1.0))), "actor_lr"),
     (lambda: al.validate(al.ALHyper(sigma_decay=0.0)), "sigma_decay"),
     (lambda: al.validate(al.ALHyper(actor_lr_decay=1.5)), "actor_lr_decay"),
+    (lambda: al.validate(al.ALHyper(actor_init_scale=0.0)), "actor_init_scale"),
+    (lambda: al.validate(al.ALHyper(executed_target=0.5)), "executed_target"),
 ])
 def test_bad_config_names_the_field(make, field):
     with pytest.raises(ValueError, match=field):
         make()
+
+
+def test_executed_action_is_the_clipped_servo_move():
+    lo, hi = np.radians(scene.PAPER_LIMITS_DEG).T
+    q = np.where(np.arange(4) == 3, hi, (lo + hi) / 2)  # joint 3 at its upper limit
+    a = np.array([0.3, -0.6, 1.4, 0.5])  # joint 3 pushes further into its limit
+    ctrl = np.clip(env_mod.unscale_joints(env_mod.scale_joints(q) + a / 3), lo, hi)
+    got = np.asarray(al.executed_action(q, ctrl, 1 / 3))
+    np.testing.assert_allclose(got, [0.3, -0.6, 1.0, 0.0], atol=1e-5)  # limited to [-1, 1]
+
+
+def test_actor_init_scale_scales_the_first_actions():
+    cfg = al.ALConfig()
+    full, _, _ = al.schedule(jax.random.key(3), cfg)
+    small, _, _ = al.schedule(jax.random.key(3), cfg, al.ALHyper(actor_init_scale=0.1))
+    np.testing.assert_allclose(small.actor.w2, 0.1 * full.actor.w2, rtol=1e-6)
+    np.testing.assert_array_equal(small.actor.w1, full.actor.w1)
 
 
 def test_schedules_are_configs():

@@ -11,10 +11,11 @@ import sys
 import textwrap
 import time
 
+import jax
 import numpy as np
 import pytest
 
-from grounding_jax import al, sweep, tl
+from grounding_jax import al, al_experiments, sweep, tl
 from grounding_jax.checkpoint import CheckpointError
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -81,6 +82,12 @@ def test_grid_expands_to_every_combination_and_groups_by_static_fields():
     al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5, 7]})
     assert len(al_spec.points()) == 6 and len(al_spec.groups()) == 1
     assert sweep._module_config(al_spec, al_spec.groups()[0][0]).cacla.critic_hidden == 7
+    # one field at a time around the base (each field's first value)
+    axes = _spec(TINY_AL, design="axes", grid={"critic_lr": [0.01, 0.1, 0.3], "sigma": [0.1, 0.2]})
+    assert [(p["critic_lr"], p["sigma"]) for p in axes.points()] == [
+        (0.01, 0.1), (0.1, 0.1), (0.3, 0.1), (0.01, 0.2)]
+    assert [sweep.point_label(axes, {"critic_lr": c, "sigma": s}) for c, s in
+            ((0.01, 0.1), (0.3, 0.1))] == ["base", "critic_lr=0.3"]
 
 
 @pytest.fixture
@@ -144,14 +151,14 @@ def test_chunks_have_one_shape_when_possible():
 def test_every_sweep_file_validates(path):
     spec = sweep.load_spec(path)
     assert spec.seeds >= 5
-    assert spec.figure.startswith("fig")
+    assert spec.figure.startswith("fig") or spec.name == "al_tuning"
     assert len(spec.points()) >= 5
 
 
 def test_the_six_paper_sweeps_are_there():
     assert {p.stem for p in SWEEPS} == {"fig6_tl_hidden", "fig7_tl_replication",
                                         "fig8a_critic_lr", "fig8b_critic_hidden",
-                                        "fig9a_actor_lr", "fig9b_actor_hidden"}
+                                        "fig9a_actor_lr", "fig9b_actor_hidden", "al_tuning"}
 
 
 BAD = [
@@ -174,6 +181,11 @@ BAD = [
      'critic_lr = [0.1]', "phase1_episodes"),
     ('module = "al"\n[grid]\ncritic_lr = [0.1, 0.1]', "grid.critic_lr"),
     ('module = "al"\n[grid\n', "not valid TOML"),
+    ('module = "tl"\neval_at = [2]\n[grid]\nlr = [0.1]', "eval_at"),
+    ('module = "al"\ndesign = "random"\n[grid]\nsigma = [0.1]', "design"),
+    ('module = "al"\neval_at = [0]\n[grid]\nsigma = [0.1]', "eval_at"),
+    ('module = "al"\neval_at = [5000]\n[grid]\nsigma = [0.1]', "eval_at"),
+    ('module = "al"\nmetric = "success_point"\n[grid]\nphase2_episodes = [10, 20]', "grid"),
 ]
 
 
@@ -222,6 +234,43 @@ def test_a_diverging_point_is_flagged_and_the_others_are_unchanged(tmp_path):
     assert not m_bad["finite"][2:].any()
     csv = (tmp_path / "bad" / "runs.csv").read_text().splitlines()
     assert csv[0] == "critic_lr,seed,td_error,diverged" and csv[-1].endswith(",1")
+
+
+def test_success_rates_are_recorded_at_the_evaluation_episodes(tmp_path):
+    spec = _spec(TINY_AL, name="succ", metric="success_mean", eval_at=[2],
+                 grid={"action_scale": [0.2, 0.3]})
+    assert spec.evaluations() == (2, 4)
+    out = sweep.run(spec, tmp_path, show_progress=False)
+    m = _metrics(tmp_path / "succ")
+    names = [f"success_{k}" for k in al_experiments.SUCCESS_METRICS]
+    for k in names:
+        assert m[k].shape == (4, 2) and np.all((m[k] >= 0) & (m[k] <= 1)), k
+    np.testing.assert_allclose(m["success_mean"], np.mean([m[k] for k in names[:-1]], 0),
+                               rtol=1e-6)
+    assert out["evaluations"] == [2, 4] and not out["lower_is_better"]
+    assert [p["runs"] for p in out["points"]] == m["success_mean"][:, -1].reshape(2, 2).tolist()
+    assert out["success"][1]["point"] == {"action_scale": 0.3}
+    assert out["success"][1]["rates"]["touch"]["runs"] == m["success_touch"][2:, -1].tolist()
+    header = (tmp_path / "succ" / "runs.csv").read_text().splitlines()[0]
+    assert header.startswith("action_scale,seed,success_mean,diverged,success_point")
+    # the hook measured the run's own agent with its own action scale: train row 3 alone
+    # (same key, same hyperparameters) and evaluate it directly
+    key = jax.random.split(jax.random.key(spec.seed), 4)[3:]
+    hp = sweep._hyper(spec, [spec.points()[1]])
+    cfg = sweep._module_config(spec, spec.groups()[0][0])
+    agents, _ = al.train_in_chunks(cfg, key, hp, [4])
+    direct = al_experiments.make_success_rates(cfg.env)(agents, jax.random.key(sweep.EVAL_SEED),
+                                                        hp.env)
+    for k in al_experiments.SUCCESS_METRICS:
+        assert direct[k][0] == m[f"success_{k}"][3, -1], k
+    # the sweep's checkpoints give its agents back
+    found = sweep.trained_agents(spec, tmp_path)
+    assert [f[0] for f in found] == [4, 4]
+    for a, b in zip(jax.tree.leaves(found[1][1]), jax.tree.leaves(agents), strict=True):
+        np.testing.assert_array_equal(a[1], b[0])
+    tail = al_experiments.point_tail(found[1][1], found[1][2].env, cfg.env, last=5,
+                                     layouts=(0,))
+    assert tail.shape == (2, 3, 5) and np.all(tail >= 0)
 
 
 SUBPROCESS_SWEEP = textwrap.dedent("""
