@@ -58,13 +58,20 @@ def solve(target: np.ndarray, q0: np.ndarray, iters: int = 400) -> tuple[np.ndar
     return q, float(np.linalg.norm(target - d.site_xpos[site]))
 
 
-def palm_position(q: np.ndarray) -> np.ndarray:
-    """World position of the palm site for arm joints ``q`` (radians)."""
+def _posed(q: np.ndarray, forward: bool = False) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """The scene at home with the arm at joints ``q``: kinematics only, or a full forward
+    pass (collision geometry for distances) when ``forward``."""
     m = scene.model()
     d = mujoco.MjData(m)
     d.qpos[:] = scene.home_qpos()
     d.qpos[scene.index().arm_qpos] = q
-    mujoco.mj_kinematics(m, d)
+    (mujoco.mj_forward if forward else mujoco.mj_kinematics)(m, d)
+    return m, d
+
+
+def palm_position(q: np.ndarray) -> np.ndarray:
+    """World position of the palm site for arm joints ``q`` (radians)."""
+    m, d = _posed(q)
     return d.site_xpos[m.site("palm").id].copy()
 
 
@@ -73,11 +80,7 @@ def finger_ray(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     The fingers are the ``fingers_col`` capsule; its end away from the palm is the tip.
     """
-    m = scene.model()
-    d = mujoco.MjData(m)
-    d.qpos[:] = scene.home_qpos()
-    d.qpos[scene.index().arm_qpos] = q
-    mujoco.mj_kinematics(m, d)
+    m, d = _posed(q)
     g = m.geom("fingers_col").id
     axis = d.geom_xmat[g].reshape(3, 3)[:, 2] * m.geom_size[g][1]
     ends = d.geom_xpos[g] + axis, d.geom_xpos[g] - axis
@@ -91,11 +94,7 @@ def finger_ray(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def clearance(q: np.ndarray) -> float:
     """Smallest distance (metres) between any arm capsule and any object, objects of layout
     0 at rest, for arm joints ``q``."""
-    m = scene.model()
-    d = mujoco.MjData(m)
-    d.qpos[:] = scene.home_qpos()
-    d.qpos[scene.index().arm_qpos] = q
-    mujoco.mj_forward(m, d)
+    m, d = _posed(q, forward=True)
     fromto = np.zeros(6)
     return min(mujoco.mj_geomDistance(m, d, m.geom(a).id, m.geom(f"{s}_geom").id, 1.0, fromto)
                for a in scene.ARM_CAPSULES for s in scene.SHAPES)
@@ -109,10 +108,6 @@ def scaled(q: np.ndarray) -> np.ndarray:
 
 def palm_ray(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Palm site position and the palm's normal (the way the open palm faces), for ``q``."""
-    m = scene.model()
-    d = mujoco.MjData(m)
-    d.qpos[:] = scene.home_qpos()
-    d.qpos[scene.index().arm_qpos] = q
-    mujoco.mj_kinematics(m, d)
+    m, d = _posed(q)
     site = m.site("palm").id
     return d.site_xpos[site].copy(), -d.site_xmat[site].reshape(3, 3)[:, 1].copy()
