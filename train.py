@@ -182,7 +182,8 @@ def al_experiments(key, out: pathlib.Path, st: dict, backend: str) -> tuple[dict
     res, agents = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"],
                         phase2=st["al_phase2"],
                 no_tricks_episodes=st["al_no_tricks"], env_config=EnvConfig(backend=backend),
-                checkpoints=(450,))
+                checkpoints=tuple(c for c in (300, 450, 800) if c < st["al_phase1"]
+                                  + st["al_phase2"]))
     print(f"al    trained {res['seeds']} agents, {res['rl_steps']:,} RL steps in "
           f"{res['train_s']:.0f} s", flush=True)
     return res, agents
@@ -288,7 +289,11 @@ def _al_report(al: dict) -> list[str]:
                  + " |")
     last = al["final"]["home"]["by_task"]
     lines += ["", f"Per task after {eps[-1]} episodes, from home (all agents' episodes "
-              "pooled): " + ", ".join(f"{k} {_pct(v)}" for k, v in last.items()) + ".", "",
+              "pooled): " + ", ".join(f"{k} {_pct(v)}" for k, v in last.items()) + "."]
+    if "switch" in al["final"]:
+        lines += ["", "Goal switch by the second task's action (the median agent): " + ", ".join(
+            f"{k} {_pct(v)}" for k, v in al["final"]["switch"]["by_action"].items()) + "."]
+    lines += ["",
               "| Fig 13 switch (step 20) | reward before | just after | final | second task "
               "succeeded |", "|---|---|---|---|---|"]
     for r in al["fig13"]["runs"]:
@@ -314,14 +319,7 @@ def _al_report(al: dict) -> list[str]:
                           for k, v in knocks.items()) + " (with the earlier geometry -- palm "
               "1 cm above the object, home beside the right object, 26-50 g objects: 52% at "
               "sigma 0.3).", "",
-              "Where we miss: see the goals in the table (README, \"Action learner\", has "
-              "the measured levers). Point: the greedy actor comes to rest (L1 range ~0) but "
-              "at a fixed point biased away from the stored pose (median final L1 above); "
-              "the precision the criterion asks (about 2 degrees a joint) is not reached with "
-              "9 tasks interleaved, nor by 1200 episodes. Touch and push: most failures "
-              "still move a wrong object, now from the learner's own paths rather than from "
-              "exploration; touch is also held back by its reward, which penalizes touching "
-              "the target (-0.3), so hovering beside it scores better."]
+              _al_goals(al)]
     lines += ["", "![success against episodes](al/success_curve.png)",
               "![Fig 10](al/fig10.png) ![Fig 11](al/fig11.png)",
               "![Fig 13](al/fig13.png)"]
@@ -329,6 +327,48 @@ def _al_report(al: dict) -> list[str]:
         lines += ["![Fig 14, no tricks](al/fig14.png) "
                   "![Fig 14, with phase 1](al/fig14_paper_schedule.png)"]
     return lines
+
+
+#: the issue's goals for the median agent, after the shipped schedule
+AL_GOALS = {"point": 0.95, "touch": 0.85, "push": 0.90, "random-start point": 0.90,
+            "goal switch": 0.80}
+
+
+def _al_goal_split(al: dict) -> tuple[dict[str, float], dict[str, float]]:
+    """(goals the final median agent meets, goals it misses): {goal name: measured rate}."""
+    fin = al["final"]
+    got = {**{a: fin["home"]["by_action"][a] for a in ("point", "touch", "push")},
+           "random-start point": fin["random_starts"]["by_action"]["point"]}
+    if "switch" in fin:
+        got["goal switch"] = fin["switch"]["overall"]
+    return ({k: v for k, v in got.items() if v >= AL_GOALS[k]},
+            {k: v for k, v in got.items() if v < AL_GOALS[k]})
+
+
+def _al_goals(al: dict) -> str:
+    """Which goals the final median agent meets and misses, with the measured reasons."""
+    met, missed = _al_goal_split(al)
+    fmt = lambda d: ", ".join(f"{k} {_pct(v)} (goal {_pct(AL_GOALS[k])})"  # noqa: E731
+                              for k, v in d.items()) or "none"
+    text = (f"Goals after {max(map(int, al['success']))} episodes -- met: {fmt(met)}; "
+            f"missed: {fmt(missed)}.")
+    reasons = {
+        "touch": "touch -- the paper's reward pays about 0.3 less for resting in contact than "
+                 "for resting a few millimetres short of it, so a precise greedy actor hovers "
+                 "(its failures move nothing)",
+        "push": "push -- the failures move a neighbour on the way or stop short of 2 cm",
+        "goal switch": "goal switch -- see its rates by the second task's action above: "
+                       "switches to touch share touch's hovering; switches to push start "
+                       "wherever the first task left the arm (not analysed further)",
+        "point": "point -- the actor rests short of the pose (precision)",
+        "random-start point": "random-start point -- as point, from farther away"}
+    if missed:
+        text += (" Why, as measured (README \"Action learner\"): "
+                 + "; ".join(reasons[k] for k in missed) + ".")
+    if max(map(int, al["success"])) > 450:
+        text += (" At the paper's 450 episodes the decays of the learning rate and sigma, "
+                 "spread over the whole run, have not yet taken hold (the table).")
+    return text
 
 
 def _pct(v: float) -> str:
@@ -414,8 +454,9 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict,
         "| module | status |", "|---|---|",
         "| scene + env (issue 3) | done: scripted episodes below |",
         "| TL target localizer, Figs 6, 7, noise (issue 4) | done: below |",
-        "| AL action learner, Figs 10, 11, 13, 14 (issue 5) | done: below (success goals "
-        "missed, see there) |",
+        "| AL action learner, Figs 10, 11, 13, 14 (issue 5) | done: below ("
+        + (f"success goals missed: {', '.join(missed)}" if (missed := _al_goal_split(al)[1])
+           else "every success goal met") + ") |",
         "| AL sweeps, Figs 8A, 8B, 9A, 9B (issue 7) | done: below |",
         "| AN action namer + SOM, Figs 12, 15 (issue 6) | done: below |",
         "| trained modules | saved to `modules/`; `grounding_jax.load` (README) |",

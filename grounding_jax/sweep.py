@@ -494,9 +494,10 @@ def _al_saved_like(cfg: al.ALConfig, keys: jax.Array, n_evals: int) -> dict:
         dataclasses.replace(cfg, phase1_episodes=0, phase2_episodes=1)),
         in_axes=(0, None))(k, al.ALHyper())[1], keys)
     like_m = {k: jax.ShapeDtypeStruct((n, cfg.episodes), v.dtype) for k, v in like_m.items()}
-    evals = np.zeros((len(al_experiments.SUCCESS_METRICS), n, n_evals), np.float32)
-    return {"agents": like_agents, "metrics": like_m, "keys": keys, "episode": np.int64(0),
-            "evals": evals}
+    like = {"agents": like_agents, "metrics": like_m, "keys": keys, "episode": np.int64(0)}
+    if n_evals:  # orbax stores no empty arrays
+        like["evals"] = np.zeros((len(al_experiments.SUCCESS_METRICS), n, n_evals), np.float32)
+    return like
 
 
 def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
@@ -568,7 +569,8 @@ def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress,
         if not np.array_equal(jax.random.key_data(saved["keys"]), jax.random.key_data(keys)):
             raise CheckpointError(f"{ck.directory}: stored run keys differ from this run's")
         start = (int(saved["episode"]), saved["agents"], saved["metrics"])
-        evals = np.asarray(saved["evals"], np.float32)
+        if evaluations:
+            evals = np.asarray(saved["evals"], np.float32)
         if progress:
             progress(n * start[0])
     done = [start[0] if start else 0]
@@ -579,8 +581,9 @@ def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress,
             for i, k in enumerate(names):
                 evals[i, :, evaluations.index(episode)] = r[k]
         if ck is not None:
-            ck.save(episode, {"agents": agents, "metrics": metrics, "keys": keys,
-                              "episode": np.int64(episode), "evals": evals})
+            tree = {"agents": agents, "metrics": metrics, "keys": keys,
+                    "episode": np.int64(episode)}
+            ck.save(episode, tree | ({"evals": evals} if evaluations else {}))
         if progress:
             progress(n * (episode - done[0]))
         done[0] = episode
@@ -686,6 +689,8 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
     xs = [p["point"][spec.x] for p in summary["points"]]
     if curves:
         ax = axes[0]
+        if len(summary["points"]) > 10:  # more lines than the default colour cycle
+            ax.set_prop_cycle(color=plt.get_cmap("tab20").colors)
         for p, c in zip(summary["points"], summary["curves"], strict=True):
             c = np.asarray(c, float)
             name = point_label(spec, p["point"])
