@@ -40,13 +40,14 @@ from grounding_jax.env import EnvConfig  # noqa: E402
 
 SUBSTEPS = 10
 HP = dict(al_experiments.TUNED)
+AL = dict(al_experiments.TUNED_AL)  # the shipped rule and decays, in both trainers
 
 
 def bench_reference(agents: int, episodes: int) -> dict:
     total = physics = steps = 0.0
     for seed in range(agents):
         _, t = reference_cacla.train(seed, phase1_episodes=episodes, phase2_episodes=0,
-                                     substeps=SUBSTEPS, **HP)
+                                     substeps=SUBSTEPS, **HP, **AL)
         total, physics, steps = total + t["total_s"], physics + t["physics_s"], steps + t["steps"]
     return {"rl_steps_per_s": steps / total, "physics_share": physics / total, "steps": steps}
 
@@ -56,7 +57,7 @@ def bench_trainer(backend: str, batch: int, episodes: int) -> dict:
                       phase1_episodes=episodes, phase2_episodes=0)
     fn = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))
     keys = jax.random.split(jax.random.key(0), batch)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(**HP))
+    hp = al.ALHyper(cacla=cacla.CaclaHyper(**HP), **AL)
     t = time.perf_counter()
     compiled = fn.lower(keys, hp).compile()
     compile_s = time.perf_counter() - t

@@ -123,8 +123,10 @@ class SequentialEnv:
 
     def step(self, a: np.ndarray) -> tuple[np.ndarray, float, bool]:
         d = self.d
-        target = self.scale(d.qpos[self.idx.arm_qpos]) + a / 3.0
-        d.ctrl[:] = np.clip(self.unscale(target), self.range[:, 0], self.range[:, 1])
+        q = self.scale(d.qpos[self.idx.arm_qpos])
+        d.ctrl[:] = np.clip(self.unscale(q + a / 3.0), self.range[:, 0], self.range[:, 1])
+        # the move the servo was really given (clipped at the joint limits), in action units
+        self.executed = np.clip((self.scale(d.ctrl) - q) * 3.0, -1.0, 1.0)
         d.qacc_warmstart[:] = 0.0  # as the JAX backends: each RL step starts cold
         t0 = time.perf_counter()
         for _ in range(self.substeps):
@@ -141,8 +143,14 @@ class SequentialEnv:
 # ------------------------------------------------------------------------------- training
 def train(seed: int, phase1_episodes: int = 150, phase2_episodes: int = 300,
           actor_lr: float = 0.001, critic_lr: float = 0.01, sigma: float = 0.1,
-          gamma: float = 0.0, substeps: int = 10) -> tuple[dict[str, np.ndarray], dict]:
-    """Train one agent. Returns (per-episode metrics, timing: total/physics seconds, steps)."""
+          gamma: float = 0.0, substeps: int = 10, actor_lr_decay: float = 1.0,
+          critic_lr_decay: float = 1.0, sigma_decay: float = 1.0,
+          executed_target: float = 0.0) -> tuple[dict[str, np.ndarray], dict]:
+    """Train one agent. Returns (per-episode metrics, timing: total/physics seconds, steps).
+
+    The decays and ``executed_target`` mean what they mean in ``grounding_jax.al.ALHyper``:
+    a rate is ``v * decay ** (episode / (episodes - 1))``; with ``executed_target`` the actor
+    is pulled toward the executed (limit-clipped) action instead of the explored one."""
     rng = np.random.default_rng(seed)
     env = SequentialEnv(substeps)
     actor = Net.init(rng, 11, 40, 4, out_tanh=True)
@@ -153,19 +161,23 @@ def train(seed: int, phase1_episodes: int = 150, phase2_episodes: int = 300,
     n_steps, t0 = 0, time.perf_counter()
     for ep in range(episodes):
         phase1 = ep < phase1_episodes
+        x = ep / max(episodes - 1, 1)
+        a_lr, c_lr = actor_lr * actor_lr_decay ** x, critic_lr * critic_lr_decay ** x
+        sig = sigma * sigma_decay ** x
         action, position = int(rng.integers(3)), int(rng.integers(3))
         obs, r_prev = env.reset(action, position, int(rng.integers(len(scene.LAYOUTS))))
         ret, done = 0.0, False
         while not done:
             _, mean = actor.forward(obs)
-            a = mean + sigma * rng.standard_normal(4)
+            a = mean + sig * rng.standard_normal(4)
             nxt, r, done = env.step(a)
             v = critic.forward(obs)[1][0]
             v_next = 0.0 if done else critic.forward(nxt)[1][0]
             delta = r + gamma * v_next - v
-            critic.step_along(obs, np.ones(1), critic_lr * delta)
+            critic.step_along(obs, np.ones(1), c_lr * delta)
             if (r > r_prev) if phase1 else (delta > 0):
-                actor.step_along(obs, a - mean, actor_lr)
+                target = env.executed if executed_target else a
+                actor.step_along(obs, target - mean, a_lr)
             obs, r_prev, ret = nxt, r, ret + r
             n_steps += 1
         for k, val in (("return", ret), ("final_reward", r),
@@ -209,13 +221,13 @@ def main(argv: list[str] | None = None) -> None:
     from grounding_jax import al, al_experiments, cacla
     from grounding_jax._io import atomic_write_text
 
-    hp_ref = dict(al_experiments.TUNED)
+    hp_ref = {**al_experiments.TUNED, **al_experiments.TUNED_AL}  # the shipped settings
     refs = [train(s, args.phase1, args.phase2, **hp_ref) for s in range(args.seeds)]
     ref_fr = np.stack([r["final_reward"] for r, _ in refs])
     ref_ac = np.stack([r["action"] for r, _ in refs])
 
     cfg = al.ALConfig(phase1_episodes=args.phase1, phase2_episodes=args.phase2)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(**hp_ref))
+    hp = al.ALHyper(cacla=cacla.CaclaHyper(**al_experiments.TUNED), **al_experiments.TUNED_AL)
     keys = jax.random.split(jax.random.key(0), args.jax_seeds)
     _, m = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))(keys, hp)
     jax_fr, jax_ac = np.asarray(m["final_reward"]), np.asarray(m["action"])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import cacla
+from grounding_jax import al, cacla, scene
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
 import reference_cacla as ref  # noqa: E402
@@ -25,6 +25,7 @@ def test_reference_env_matches_the_jax_env(env_c, action, position, layout):
     # a smooth action sequence that reaches over the objects (touch/push make contacts)
     t = np.arange(40)[:, None]
     actions = np.clip(0.6 * np.sin(0.15 * t + np.array([0.0, 1.0, 2.0, 3.0])), -1, 1)
+    actions[5:8] = [1.4, -1.2, 1.3, 1.5]  # beyond the actor's range: the executed one is clipped
     task = gj.make_task(action, position, layout)
     step = jax.jit(env_c.step)
     s = env_c.reset(jax.random.key(0), task)
@@ -33,9 +34,14 @@ def test_reference_env_matches_the_jax_env(env_c, action, position, layout):
     np.testing.assert_allclose(obs, np.asarray(s.obs), atol=1e-5)
     assert r == pytest.approx(float(s.reward), abs=1e-5)
     contact = False
+    arm = np.asarray(scene.index().arm_qpos)
     for a in actions:
+        q = np.asarray(s.qpos)[arm]
         s = step(s, jnp.asarray(a, jnp.float32))
         obs, r, done = e.step(a)
+        # the executed action (the shipped actor target) is computed alike
+        np.testing.assert_allclose(e.executed, al.executed_action(q, s.info["ctrl"], 1 / 3),
+                                   atol=5e-3 if contact else 1e-4)
         contact |= bool(obs[4])
         # Free motion agrees to float32 rounding. Contacts amplify the float32 (JAX state) vs
         # float64 (reference) difference: measured up to 2.2e-3 on a push.
