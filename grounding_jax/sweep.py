@@ -211,8 +211,9 @@ class SweepSpec:
         return [({k: pts[idx[0]][k] for k in static}, idx) for idx in out.values()]
 
     def to_json(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name != "source"}
+        """The spec as parse_spec accepts it back (tuples as lists)."""
+        return {f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
+                for f in dataclasses.fields(self) if f.name != "source"}
 
 
 def _err(source: str, key: str, msg: str) -> SweepError:
