@@ -442,8 +442,8 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
         ``metrics`` (each ``[rows, ...]``), ``finite`` ``[rows]`` and ``rows`` (indices into
         points x seeds).
     """
-    static, idx = spec.groups()[group]
-    rows = np.asarray([p * spec.seeds + s for p in idx for s in range(spec.seeds)])
+    static, _ = spec.groups()[group]
+    rows = _group_rows(spec, group)
     points = spec.points()
     batch_rows = [points[r // spec.seeds] for r in rows]
     cfg = _module_config(spec, static)
@@ -476,13 +476,27 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
     return {"metrics": metrics, "finite": finite, "rows": rows}
 
 
+def _group_rows(spec: SweepSpec, group: int) -> np.ndarray:
+    """The runs of a static group: indices into points x seeds (row ``point * seeds + seed``)."""
+    return np.asarray([p * spec.seeds + s for p in spec.groups()[group][1]
+                       for s in range(spec.seeds)])
+
+
+def _run_keys(spec: SweepSpec, key: jax.Array | None = None) -> np.ndarray:
+    """Raw key data of every run: ``key`` (default ``jax.random.key(spec.seed)``) split once
+    into points x seeds."""
+    key = jax.random.key(spec.seed) if key is None else key
+    return np.asarray(jax.random.key_data(jax.random.split(key, len(spec.points())
+                                                           * spec.seeds)))
+
+
 def _checkpointer(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path
                   ) -> Checkpointer:
-    static, idx = spec.groups()[group]
-    rows = [p * spec.seeds + s for p in idx for s in range(spec.seeds)]
+    static, _ = spec.groups()[group]
     return Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
                         {"spec": spec.to_json(), "group": group, "static": static,
-                         "rows": rows, "devices": jax.local_device_count(),
+                         "rows": _group_rows(spec, group).tolist(),
+                         "devices": jax.local_device_count(),
                          "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
 
 
@@ -502,13 +516,14 @@ def _al_saved_like(cfg: al.ALConfig, keys: jax.Array, n_evals: int) -> dict:
 
 
 def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
-                   seed: int | None = None):
+                   seed: int | None = None, key: jax.Array | None = None):
     """The AL agents of a finished (or interrupted) sweep, from its checkpoints.
 
     Args:
         spec: the sweep, as it was run.
         out: the parent folder it was run under.
         seed: the seed it was run with, if not ``spec.seed``.
+        key: the key it was run with, if :func:`run` was given one.
 
     Returns:
         A list with, per point (``spec.points()`` order): ``(episode, agents [seeds],
@@ -520,17 +535,16 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
                          f"{spec.module!r}")
     spec = spec if seed is None else dataclasses.replace(spec, seed=seed)
     n_pts = len(spec.points())
-    run_keys = np.asarray(jax.random.key_data(
-        jax.random.split(jax.random.key(spec.seed), n_pts * spec.seeds)))
+    run_keys = _run_keys(spec, key)
     folder = pathlib.Path(out) / spec.name
     found: dict[int, tuple] = {}
     for g, (static, idx) in enumerate(spec.groups()):
         ck = _checkpointer(spec, g, run_keys, folder)
         if ck.latest_step() is None:
             raise CheckpointError(f"{ck.directory}: no checkpoint; run the sweep first")
-        rows = [p * spec.seeds + s for p in idx for s in range(spec.seeds)]
+        rows = _group_rows(spec, g)
         keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
-        sharding, pad = _batch_sharding(len(rows))
+        _, pad = _batch_sharding(len(rows))
         keys = _pad(keys, pad)
         cfg = _module_config(spec, static)
         step = ck.latest_step()
@@ -780,9 +794,7 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
         shutil.rmtree(folder / "checkpoints")
     folder.mkdir(parents=True, exist_ok=True)
     n_pts = len(spec.points())
-    key = jax.random.key(spec.seed) if key is None else key
-    run_keys = np.asarray(jax.random.key_data(
-        jax.random.split(key, n_pts * spec.seeds)))  # the one split
+    run_keys = _run_keys(spec, key)  # the one split
     groups = spec.groups()
     per_run = (lambda s: s["phase1_episodes"] + s["phase2_episodes"]) if spec.module == "al" \
         else (lambda s: s["epochs"])
