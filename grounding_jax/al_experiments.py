@@ -57,9 +57,12 @@ ALL_LAYOUTS = tuple(range(len(scene.LAYOUTS)))
 _TARGET_SHAPE = jnp.asarray(np.argsort(scene.layout_shape_slots(), axis=1), jnp.int32)
 
 
-def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS) -> Task:
-    """Every (action, position, layout) combination as a batched :class:`Task`."""
-    a, p, lay = np.meshgrid(np.arange(3), np.arange(3), np.asarray(layouts), indexing="ij")
+def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS, actions: tuple[int, ...] = (0, 1, 2)
+              ) -> Task:
+    """Every (action, position, layout) combination of ``actions`` as a batched
+    :class:`Task`."""
+    a, p, lay = np.meshgrid(np.asarray(actions), np.arange(3), np.asarray(layouts),
+                            indexing="ij")
     return Task(*(jnp.asarray(x.ravel(), jnp.int32) for x in (a, p, lay)))
 
 
@@ -122,10 +125,8 @@ def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] =
         :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``.
     """
     evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=steps))
-    tasks = all_tasks(layouts)
-    keep = np.isin(np.asarray(tasks.action), actions)
-    tasks = jax.tree.map(lambda x: x[keep], tasks)
-    n_tasks = int(keep.sum())
+    tasks = all_tasks(layouts, actions)
+    n_tasks = int(tasks.action.shape[0])
 
     def one(agent, key, task, params):
         _, traj, _ = evaluate(agent, key, task, params)
@@ -602,9 +603,7 @@ def point_tail(agents: cacla.Agent, env_params: EnvParams = DEFAULT_PARAMS,
     point task from home, ``[agents, 3 positions x layouts, last]`` (``env_params`` leaves
     shared or per agent)."""
     evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=EVAL_STEPS))
-    tasks = all_tasks(layouts)
-    keep = np.asarray(tasks.action) == 0
-    tasks = jax.tree.map(lambda x: x[keep], tasks)
+    tasks = all_tasks(layouts, actions=(0,))
     axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, env_params)
 
     @jax.jit
