@@ -28,7 +28,7 @@ PROFILES = {
               "al_seeds": 3, "al_phase1": 150, "al_phase2": 150, "al_no_tricks": 200,
               "an_seeds": 3, "an_tl_epochs": 200},
     # the TL grids are those of sweeps/fig6_tl_hidden.toml and sweeps/fig7_tl_replication.toml
-    "paper": {"tl_epochs": 600, "tl_seeds": 5, "tl_hidden": [5, 10, 20, 30, 40, 50, 75, 100],
+    "paper": {"tl_epochs": 600, "tl_seeds": 10, "tl_hidden": [5, 10, 20, 30, 40, 50, 75, 100],
               "tl_replication": [1, 2, 5, 10, 15, 20, 25, 30], "sweep_seeds": 5,
               # the paper's schedule is 150 + 300 episodes: success is measured there, and
               # after 1200 (more did not help: README "Action learner"); >= 8 agents
@@ -156,7 +156,8 @@ def env_check(key, backend: str) -> list[dict]:
 
 
 def tl_experiments(key, out: pathlib.Path, st: dict) -> dict:
-    """The TL results: accuracy, Fig 6, Fig 7, noise (fixed and fresh flips)."""
+    """The TL results: accuracy, the reference learners, Fig 6, Fig 7, noise (fixed and
+    fresh flips)."""
     import jax
 
     from grounding_jax import tl_experiments as E
@@ -165,6 +166,7 @@ def tl_experiments(key, out: pathlib.Path, st: dict) -> dict:
     ep, seeds = st["tl_epochs"], st["tl_seeds"]
     res = {"accuracy": E.accuracy(k_acc, out, seeds, ep)}
     print(f"tl    accuracy H=50 n=20: test {res['accuracy']['test_acc_mean']:.3f}", flush=True)
+    res["reference"] = E.reference(k_acc, out, res["accuracy"], seeds)  # the same splits
     res["fig6"] = E.sweep(k6, out, "hidden", st["tl_hidden"], seeds, ep, name="fig6")
     res["fig7"] = E.sweep(k7, out, "replication", st["tl_replication"], seeds, ep, name="fig7")
     res["noise"] = E.accuracy(k_fixed, out, seeds, ep, noise=0.1, name="noise")
@@ -438,6 +440,37 @@ def _sweeps_report(sweeps: dict | None) -> list[str]:
     return lines
 
 
+def _tl_reference_report(tl: dict) -> list[str]:
+    """The TL beside the lookup bound and the standard learners, the goals, and the noise
+    protocols."""
+    a, n, nf = tl["accuracy"], tl["noise"], tl["noise_fresh"]
+    lines = ["", "Our TL beside a lookup that knows the task's structure (the majority label of "
+             "the training configurations with the same target word and the same colour order, "
+             "for colour words, or shape order, for shape words) and two standard learners "
+             "(optax Adam, cross-entropy, on the paper's unscaled inputs), on the same "
+             "train/test splits:", "",
+             "| learner | test accuracy | min over splits | shape words | colour words |",
+             "|---|---|---|---|---|"]
+    for name, r in tl.get("reference", {}).get("learners", {}).items():
+        lines.append(f"| {name} | {_pct(r['test_acc_mean'])} ± {100 * r['test_acc_std']:.1f}"
+                     f" | {_pct(r['test_acc_min'])} | {_pct(r['test_acc_shape_words_mean'])} | "
+                     f"{_pct(r['test_acc_colour_words_mean'])} |")
+    low = min(a["test_acc_per_seed"])
+    met = a["test_acc_mean"] >= 0.95 and low >= 0.85
+    lines += ["", "![reference](tl/reference.png)", "",
+              f"Goal (>= 95% mean test accuracy, no split below 85%): "
+              f"{'met' if met else 'MISSED'} -- {_pct(a['test_acc_mean'])} mean, lowest split "
+              f"{_pct(low)}.",
+              "", f"Pixel noise (10% flips): with one fixed draw per pattern (a fixed noisy data "
+              f"set) the network still learns every training pattern ({_pct(n['train_acc_mean'])})"
+              f" and tests at {_pct(n['test_acc_mean'])}; with fresh flips at every presentation "
+              f"the noise acts as a regularizer ({_pct(nf['test_acc_mean'])}). The paper's "
+              "100% train / ~75% test, 'probably due to overfitting', is the fixed protocol: "
+              "only a fixed noisy set can be learned to 100% while test patterns bring unseen "
+              "flips."]
+    return lines
+
+
 def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict,
            sweeps: dict | None = None) -> str:
     """REPORT.md: the paper's numbers beside ours, figures embedded."""
@@ -449,8 +482,11 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict,
     lines = [
         f"# grounding_jax report ({args.profile} profile, backend {args.backend}, "
         f"seed {args.seed})", "",
-        f"TL: {tl['accuracy']['epochs']} epochs, {tl['accuracy']['seeds']} seeds per point, "
-        "online backprop, lr 0.1. Means ± std over seeds.", "",
+        f"TL: the paper's network (1500-H-3 sigmoid, squared error, online backprop, "
+        f"winner-take-all), {tl['accuracy']['epochs']} epochs, {tl['accuracy']['seeds']} "
+        f"seeds (train/test splits) per point, lr {a['lr']}, on pixels = {a['image_scale']}, "
+        f"target units = {a['target_scale']} (the paper: lr 0.1, both 1; README, \"Target "
+        "localizer\"). Means ± std over seeds.", "",
         "| module | status |", "|---|---|",
         "| scene + env (issue 3) | done: scripted episodes below |",
         "| TL target localizer, Figs 6, 7, noise (issue 4) | done: below |",
@@ -493,14 +529,7 @@ def report(args, env_rows: list[dict], tl: dict, al: dict, an: dict, wall: dict,
         "| test | " + " | ".join(_pct(p["test_acc_mean"]) for p in f7.values()) + " |",
         "", "![accuracy](tl/accuracy.png) ![Fig 6](tl/fig6.png) ![Fig 7](tl/fig7.png)",
         "![noise](tl/noise.png) ![noise, fresh](tl/noise_fresh.png)", "",
-        f"Where we miss: test accuracy at H=50, n=20 is {_pct(a['test_acc_mean'])} against the "
-        f"paper's ~95%. Patterns that name a colour -- whose answer never depends on the "
-        f"image -- are at {_pct(a['test_acc_colour_words_mean'])}, those naming a shape at "
-        f"{_pct(a['test_acc_shape_words_mean'])}: the gap is in how the symbolic conjunction "
-        "generalizes from 144 training patterns, not in our rendering, and it varies a lot "
-        "with the train/test split (std over seeds above). With fixed noise the network "
-        "memorizes each training pattern's flips and test accuracy falls below chance (the "
-        "paper reports ~75%); with fresh flips at every presentation the noise regularizes.",
+        *_tl_reference_report(tl),
         *_sweeps_report(sweeps),
         *_al_report(al),
         *_an_report(an),

@@ -33,7 +33,7 @@ DEFAULT_SOM = som.SOMConfig()
 
 def train_tl(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
              ) -> tuple[tl.TLParams, tl.TLHyper, np.ndarray, float]:
-    """Train one TL (H=50, n=20).
+    """Train one TL (H=50, n=20, the shipped :data:`tl.TUNED` input balance and rate).
 
     Returns:
         (parameters, its hyperparameters, hidden activations for the 216 configurations
@@ -42,7 +42,7 @@ def train_tl(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
     data = tl_data.load() if data is None else data
     cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20, eval_every=epochs,
                       pixel_budget=int(data.bitmaps.sum(1).max()))  # clean bitmaps: sparse rows
-    hp = tl.TLHyper(hidden=50, replication=20)
+    hp = tl.TLHyper(hidden=50, replication=20, **tl.TUNED)
     params, m = jax.jit(tl.make_train(cfg, data))(key, hp)
     x = tl.build_inputs(jnp.asarray(data.bitmaps), jnp.asarray(data.symbols), hp, cfg)
     _, hid_mask = tl.masks(hp, cfg)
@@ -52,8 +52,8 @@ def train_tl(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
 
 def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
               ) -> tuple[np.ndarray, float]:
-    """Train one TL (H=50, n=20) and return its hidden activations for the 216 configurations
-    ``[216, 50]`` and its test accuracy."""
+    """Train one TL (as :func:`train_tl`) and return its hidden activations for the 216
+    configurations ``[216, 50]`` and its test accuracy."""
     return train_tl(key, epochs, data)[2:]
 
 

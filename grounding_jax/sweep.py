@@ -129,6 +129,8 @@ FIELDS: dict[str, dict[str, Field]] = {
         "lr": Field("traced", float, _TH.lr, "> 0", _pos),
         "replication": Field("traced", int, _TH.replication, *_int_at_least(1)),
         "noise": Field("traced", float, _TH.noise, "in [0, 1]", lambda v: 0 <= v <= 1),
+        "image_scale": Field("traced", float, _TH.image_scale, "> 0", _pos),
+        "target_scale": Field("traced", float, _TH.target_scale, "> 0", _pos),
     },
 }
 

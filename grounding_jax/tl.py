@@ -80,20 +80,43 @@ class TLHyper:
         hidden: hidden units in use (paper: 50).
         replication: times the 15 colour + target units are repeated (paper: 20).
         noise: probability that each bitmap pixel is flipped (fixed per pattern; paper: 0.1).
+        image_scale: value of an "on" pixel (paper: 1). Input balance, like ``replication``.
+        target_scale: value of the active target-word unit (paper: 1); the colour units stay
+            1. Scaling an input by s acts like replicating it s**2 times more (same initial
+            spread of the pre-activations, same change per update).
     """
 
     lr: Any = 0.1
     hidden: Any = 50
     replication: Any = 20
     noise: Any = 0.0
+    image_scale: Any = 1.0
+    target_scale: Any = 1.0
+
+
+#: The shipped input balance and learning rate, chosen on tuning keys disjoint from the
+#: reported ones (README, "Target localizer"); the defaults of :class:`TLHyper` are the paper's.
+TUNED = {"lr": 0.15, "image_scale": 0.6, "target_scale": 8.0}
+#: The fields of :class:`TLHyper` and whether each is a float (else an int).
+HYPER_FIELDS = {"lr": True, "hidden": False, "replication": False, "noise": True,
+                "image_scale": True, "target_scale": True}
 
 
 def stack_hyper(rows: list[dict]) -> TLHyper:
-    """A batch of hyperparameters from dicts with ``lr``, ``hidden``, ``replication`` and
-    ``noise``: arrays with a leading batch axis (float32 rates, int32 sizes)."""
-    return TLHyper(**{f: jnp.asarray([r[f] for r in rows],
-                                     jnp.float32 if f in ("lr", "noise") else jnp.int32)
-                      for f in ("lr", "hidden", "replication", "noise")})
+    """A batch of hyperparameters from dicts of :data:`HYPER_FIELDS` (a missing field takes
+    the :class:`TLHyper` default): arrays with a leading batch axis (float32 rates and
+    scales, int32 sizes)."""
+    default = TLHyper()
+    return TLHyper(**{f: jnp.asarray([r.get(f, getattr(default, f)) for r in rows],
+                                     jnp.float32 if is_float else jnp.int32)
+                      for f, is_float in HYPER_FIELDS.items()})
+
+
+def symbol_scale(hp: TLHyper) -> jax.Array:
+    """Per-unit values ``[15]`` of the symbolic units: 1 for the 9 colour units,
+    ``target_scale`` for the 6 target units."""
+    return jnp.concatenate([jnp.ones(N_SYMBOLS - 6, jnp.float32),
+                            jnp.full((6,), 1.0, jnp.float32) * hp.target_scale])
 
 
 def validate(hp: TLHyper, config: TLConfig) -> None:
@@ -113,6 +136,10 @@ def validate(hp: TLHyper, config: TLConfig) -> None:
                          f"{config.max_replication}")
     if np.any(noise < 0) or np.any(noise > 1):
         raise ValueError(f"noise: must be in [0, 1], got {noise}")
+    for name in ("image_scale", "target_scale"):
+        v = np.asarray(getattr(hp, name), np.float64)
+        if not np.all(np.isfinite(v)) or np.any(v <= 0):
+            raise ValueError(f"{name}: must be a finite number > 0, got {v}")
     if config.pixel_budget and np.any(noise > 0):
         raise ValueError("noise: must be 0 with pixel_budget > 0 (sparse rows assume clean "
                          "bitmaps); use pixel_budget=0 for the noise test")
@@ -191,10 +218,20 @@ def apply(params: TLParams, x: jax.Array, hid_mask: jax.Array | None = None
 
 def build_inputs(bitmaps: jax.Array, symbols: jax.Array, hp: TLHyper, config: TLConfig
                  ) -> jax.Array:
-    """Padded inputs ``[N, n_inputs]``: bitmap, then the 15 symbols x max_replication, masked."""
+    """Padded inputs ``[N, n_inputs]``: bitmap x ``image_scale``, then the 15 symbols (target
+    units x ``target_scale``) x max_replication, masked."""
     in_mask, _ = masks(hp, config)
-    sym = jnp.tile(symbols, (1, config.max_replication))
-    return jnp.concatenate([bitmaps, sym], axis=1) * in_mask
+    sym = jnp.tile(symbols * symbol_scale(hp), (1, config.max_replication))
+    return jnp.concatenate([bitmaps * hp.image_scale, sym], axis=1) * in_mask
+
+
+def split_indices(key: jax.Array, n_all: int = tl_data.N_CONFIGS
+                  ) -> tuple[jax.Array, jax.Array]:
+    """(train, test) indices of the configurations that :func:`make_train` uses for ``key``:
+    a random 2/3 : 1/3 split (the same for every hyperparameter)."""
+    perm = jax.random.permutation(jax.random.split(key, 4)[0], n_all)
+    n_train = int(round(2 / 3 * n_all))
+    return perm[:n_train], perm[n_train:]
 
 
 def make_train(config: TLConfig, data: tl_data.TLData | None = None):
@@ -218,7 +255,7 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
     """
     data = tl_data.load() if data is None else data
     bitmaps = jnp.asarray(data.bitmaps)
-    symbols = jnp.asarray(data.symbols)
+    symbols_raw = jnp.asarray(data.symbols)
     labels = jnp.asarray(data.labels)
     shape_word = jnp.asarray(data.word < len(tl_data.TARGET_WORDS) // 2)
     targets = jax.nn.one_hot(labels, N_OUT)
@@ -236,13 +273,14 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
 
     def train(key: jax.Array, hp: TLHyper) -> tuple[TLParams, dict[str, jax.Array]]:
         k_split, k_noise, k_init, k_epochs = jax.random.split(key, 4)
-        perm = jax.random.permutation(k_split, n_all)
-        tr, te = perm[:n_train], perm[n_train:]
+        tr, te = split_indices(key, n_all)
+        on = jnp.asarray(hp.image_scale, jnp.float32)  # the value of an "on" pixel
+        symbols = symbols_raw * symbol_scale(hp)
         if budget:  # sparse rows are only valid for the clean bitmaps (validate checks)
-            pixels = bitmaps
+            pixels = bitmaps * on
         else:
             flip = jax.random.bernoulli(k_noise, hp.noise, bitmaps.shape)
-            pixels = jnp.where(flip, 1.0 - bitmaps, bitmaps)
+            pixels = jnp.where(flip, 1.0 - bitmaps, bitmaps) * on
         _, hid_mask = masks(hp, config)
         p0 = init(k_init, hp, config)
         rep_mask = (jnp.arange(config.max_replication) < hp.replication).astype(jnp.float32)
@@ -271,13 +309,13 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
             wp, u, b1, w2, b2 = st
             sym = symbols[i]
             if budget:
-                rows, vals = pix_idx[i], pix_val[i]
+                rows, vals = pix_idx[i], pix_val[i] * on
                 h = jax.nn.sigmoid(vals @ wp[rows] + sym @ (s0 + n_rep * u) + b1) * hid_mask
             else:
                 pix = pixels[i]
                 if config.noise_mode == "fresh":
                     pix = jnp.where(jax.random.bernoulli(k, hp.noise, pix.shape),
-                                    1.0 - bitmaps[i], bitmaps[i])
+                                    1.0 - bitmaps[i], bitmaps[i]) * on
                 h = jax.nn.sigmoid(pix @ wp + sym @ (s0 + n_rep * u) + b1) * hid_mask
             y = jax.nn.sigmoid(h @ w2 + b2)
             d_out = (y - targets[i]) * y * (1.0 - y)  # d(0.5 |y - t|^2) / d(pre-activation)
@@ -326,20 +364,19 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
     return train
 
 
-def localize(params: TLParams, bitmap: jax.Array, symbols: jax.Array, replication: int,
-             hidden: int) -> jax.Array:
+def localize(params: TLParams, bitmap: jax.Array, symbols: jax.Array, hp: TLHyper
+             ) -> jax.Array:
     """Position (0 left, 1 middle, 2 right) of the named object, by winner-take-all.
 
     Args:
         params: trained parameters (padded sizes are read from their shapes).
         bitmap: ``[1200]`` edge bitmap.
         symbols: ``[15]`` colour + target units.
-        replication: the n the network was trained with.
-        hidden: the hidden size it was trained with.
+        hp: the hyperparameters the network was trained with (hidden size, replication and
+            input scales; the others are unused).
     """
     cfg = TLConfig(max_hidden=params.w1.shape[1],
                    max_replication=(params.w1.shape[0] - N_PIXELS) // N_SYMBOLS)
-    hp = TLHyper(hidden=hidden, replication=replication)
     x = build_inputs(bitmap[None], symbols[None], hp, cfg)[0]
     _, hid_mask = masks(hp, cfg)
     return jnp.argmax(apply(params, x, hid_mask)[1])

@@ -13,6 +13,7 @@ import time
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import tl, tl_data
@@ -24,6 +25,11 @@ PAPER = {
     "fig6": "test accuracy saturates at ~95% from ~50 hidden units",
     "fig7": "best ~95% at n=20; without replication <= 75%",
 }
+
+
+#: The network the experiments train: the paper's H=50, n=20 with the shipped input balance
+#: and learning rate (:data:`tl.TUNED`).
+BASE = {"hidden": 50, "replication": 20, **tl.TUNED}
 
 
 def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.TLConfig,
@@ -50,7 +56,7 @@ def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.
         # clean bitmaps: sparse pixel updates give the same result with less memory traffic
         config = dataclasses.replace(config, pixel_budget=int(data.bitmaps.sum(1).max()))
     default = tl.TLHyper()
-    rows = [{f: g.get(f, getattr(default, f)) for f in ("lr", "hidden", "replication", "noise")}
+    rows = [{f: g.get(f, getattr(default, f)) for f in tl.HYPER_FIELDS}
             for g in grid for _ in range(seeds)]
 
     tl.validate(tl.stack_hyper(rows), dataclasses.replace(
@@ -93,8 +99,8 @@ def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 60
     """H=50, n=20 over ``seeds`` seeds (``noise`` > 0: the pixel-flip test)."""
     cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20, noise_mode=noise_mode)
     t = time.perf_counter()
-    m = run_grid(key, [{"hidden": 50, "replication": 20, "noise": noise}], seeds, cfg)
-    res = {"hidden": 50, "replication": 20, "noise": noise, "noise_mode": noise_mode,
+    m = run_grid(key, [{**BASE, "noise": noise}], seeds, cfg)
+    res = {**BASE, "noise": noise, "noise_mode": noise_mode,
            "epochs": epochs, "seeds": seeds,
            **_summary(m, 0), "wall_s": time.perf_counter() - t,
            "paper": PAPER["noise" if noise else "accuracy"]}
@@ -120,13 +126,12 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
     if field not in ("hidden", "replication"):
         raise ValueError(f"field: unknown value {field!r}; accepted values: "
                          "('hidden', 'replication')")
-    base = {"hidden": 50, "replication": 20}
-    grid = [{**base, field: int(v)} for v in values]
+    grid = [{**BASE, field: int(v)} for v in values]
     cfg = tl.TLConfig(epochs=epochs, max_replication=max(g["replication"] for g in grid))
     t = time.perf_counter()
     m = run_grid(key, grid, seeds, cfg)
     points = [{field: int(v), **_summary(m, i)} for i, v in enumerate(values)]
-    res = {"field": field, "values": [int(v) for v in values], "fixed": base, "seeds": seeds,
+    res = {"field": field, "values": [int(v) for v in values], "fixed": BASE, "seeds": seeds,
            "epochs": epochs, "points": points, "wall_s": time.perf_counter() - t,
            "paper": PAPER[name] if name in PAPER else None}
     plt = pyplot()
@@ -140,6 +145,129 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
     ax.set(xlabel=label, ylabel="accuracy", ylim=(0, 1.02),
            title=f"TL accuracy vs {label} ({seeds} seeds, {epochs} epochs)")
     ax.legend()
+    write_figure(out, name, res, fig)
+    plt.close(fig)
+    return res
+
+
+def lookup_bound(data: tl_data.TLData, train_idx: np.ndarray, test_idx: np.ndarray) -> dict:
+    """Accuracy of a lookup that knows what the task is made of: a test configuration takes
+    the majority label of the training configurations with its target word and its colour
+    order (colour words) or shape order (shape words); with none, it is counted wrong.
+
+    Returns:
+        ``acc``, ``acc_shape_words``, ``acc_colour_words``.
+    """
+    from grounding_jax import scene
+
+    shape_order = np.array([scene.SHAPE_ORDERS.index(tuple(scene.LAYOUTS[i][0]))
+                            for i in data.layout])
+    colour_order = np.array([scene.COLOUR_ORDERS.index(tuple(scene.LAYOUTS[i][1]))
+                             for i in data.layout])
+    is_shape = data.word < len(scene.SHAPES)
+    order = np.where(is_shape, shape_order, colour_order)
+    right = []
+    for i in test_idx:
+        same = train_idx[(data.word[train_idx] == data.word[i]) & (order[train_idx] == order[i])]
+        votes = np.bincount(data.labels[same], minlength=3)
+        right.append(len(same) > 0 and votes.argmax() == data.labels[i])
+    right = np.asarray(right)
+    shape_test = is_shape[test_idx]
+    return {"acc": float(right.mean()), "acc_shape_words": float(right[shape_test].mean()),
+            "acc_colour_words": float(right[~shape_test].mean())}
+
+
+def _adam_classifier(x_tr, y_tr, x_te, key, hidden: int, steps: int = 2000, lr: float = 1e-3,
+                     l2: float = 1e-4):
+    """Softmax cross-entropy with L2, full batch, optax Adam: a linear model (``hidden`` 0)
+    or one ReLU hidden layer. Returns the test predictions."""
+    import optax
+
+    d = x_tr.shape[1]
+    k1, k2 = jax.random.split(key)
+    if hidden:
+        params = {"w1": jax.random.normal(k1, (d, hidden)) * jnp.sqrt(2.0 / d),
+                  "b1": jnp.zeros(hidden),
+                  "w2": jax.random.normal(k2, (hidden, 3)) * jnp.sqrt(1.0 / hidden),
+                  "b2": jnp.zeros(3)}
+    else:
+        params = {"w2": jnp.zeros((d, 3)), "b2": jnp.zeros(3)}
+
+    def logits(p, x):
+        h = jax.nn.relu(x @ p["w1"] + p["b1"]) if hidden else x
+        return h @ p["w2"] + p["b2"]
+
+    def loss(p):
+        ce = optax.softmax_cross_entropy_with_integer_labels(logits(p, x_tr), y_tr).mean()
+        return ce + l2 * sum(jnp.sum(w ** 2) for k, w in p.items() if k.startswith("w"))
+
+    opt = optax.adam(lr)
+
+    def step(carry, _):
+        p, s = carry
+        g = jax.grad(loss)(p)
+        u, s = opt.update(g, s, p)
+        return (optax.apply_updates(p, u), s), None
+
+    (params, _), _ = jax.lax.scan(step, (params, opt.init(params)), None, length=steps)
+    return jnp.argmax(logits(params, x_te), -1)
+
+
+def reference(key: jax.Array, out: pathlib.Path, tl_result: dict, seeds: int,
+              name: str = "reference") -> dict:
+    """Our TL beside the lookup bound and two standard learners (optax Adam, softmax
+    cross-entropy, L2 1e-4, 2000 full-batch steps, on the paper's inputs: bitmap + 20 copies
+    of the 15 symbolic units): logistic regression and an MLP with 50 ReLU units. All on the
+    train/test splits the TL's :func:`accuracy` run used (``key`` is that run's key).
+
+    Returns:
+        Per learner: mean, std and min test accuracy over the splits, and the accuracy on
+        patterns naming a shape / a colour.
+    """
+    data = tl_data.load()
+    x = jnp.asarray(tl_data.inputs(data, 20))
+    y = jnp.asarray(data.labels)
+    is_shape = data.word < 3
+    keys = jax.random.split(key, seeds)
+    t = time.perf_counter()
+    rows: dict[str, list] = {"lookup": [], "logistic regression (Adam)": [],
+                             "MLP 50 ReLU (Adam)": []}
+    for k in keys:
+        tr, te = (np.asarray(i) for i in tl.split_indices(k))
+        rows["lookup"].append(lookup_bound(data, tr, te))
+        for label, hidden in (("logistic regression (Adam)", 0), ("MLP 50 ReLU (Adam)", 50)):
+            pred = np.asarray(jax.jit(_adam_classifier, static_argnums=4)(
+                x[tr], y[tr], x[te], jax.random.fold_in(k, hidden), hidden))
+            right = pred == data.labels[te]
+            rows[label].append({"acc": float(right.mean()),
+                                "acc_shape_words": float(right[is_shape[te]].mean()),
+                                "acc_colour_words": float(right[~is_shape[te]].mean())})
+
+    def summary(r: list[dict]) -> dict:
+        acc = np.array([v["acc"] for v in r])
+        return {"test_acc_mean": float(acc.mean()), "test_acc_std": float(acc.std()),
+                "test_acc_min": float(acc.min()),
+                "test_acc_shape_words_mean": float(np.mean([v["acc_shape_words"] for v in r])),
+                "test_acc_colour_words_mean": float(np.mean([v["acc_colour_words"]
+                                                             for v in r]))}
+
+    res = {"seeds": seeds, "learners": {k: summary(v) for k, v in rows.items()}}
+    res["learners"]["our TL (paper's network, tuned input balance)"] = {
+        "test_acc_mean": tl_result["test_acc_mean"], "test_acc_std": tl_result["test_acc_std"],
+        "test_acc_min": min(tl_result["test_acc_per_seed"]),
+        "test_acc_shape_words_mean": tl_result["test_acc_shape_words_mean"],
+        "test_acc_colour_words_mean": tl_result["test_acc_colour_words_mean"]}
+    res["wall_s"] = time.perf_counter() - t
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    names = list(res["learners"])
+    mu = [res["learners"][n]["test_acc_mean"] for n in names]
+    sd = [res["learners"][n]["test_acc_std"] for n in names]
+    ax.barh(names, mu, xerr=sd, capsize=3)
+    ax.axvline(0.95, color="gray", lw=0.8, ls=":")
+    ax.set(xlim=(0, 1.02), xlabel=f"test accuracy ({seeds} splits)",
+           title="TL beside the lookup bound and standard learners")
+    fig.tight_layout()
     write_figure(out, name, res, fig)
     plt.close(fig)
     return res

@@ -37,14 +37,13 @@ class TrainedTL:
     """The target localizer: where does the named object lie?"""
 
     params: tl.TLParams
-    hidden: int
-    replication: int
+    hyper: tl.TLHyper  # hidden size, replication n and input scales it was trained with
 
     def _inputs(self, bitmap: jax.Array, symbols: jax.Array) -> tuple[jax.Array, jax.Array]:
         cfg = tl.TLConfig(max_hidden=self.params.w1.shape[1],
                           max_replication=(self.params.w1.shape[0] - tl.N_PIXELS)
                           // tl.N_SYMBOLS)
-        hp = tl.TLHyper(hidden=self.hidden, replication=self.replication)
+        hp = self.hyper
         lead = jnp.shape(bitmap)[:-1]
         x = tl.build_inputs(jnp.reshape(bitmap, (-1, tl.N_PIXELS)),
                             jnp.reshape(symbols, (-1, tl.N_SYMBOLS)), hp, cfg)
@@ -153,7 +152,10 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
     try:
         t = config["tl"]
         tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
-        tl_hp = tl.TLHyper(hidden=t["hidden"], replication=t["replication"])
+        # input scales: 1 (the paper's) in configs written before they existed
+        tl_hp = tl.TLHyper(hidden=t["hidden"], replication=t["replication"],
+                           image_scale=t.get("image_scale", 1.0),
+                           target_scale=t.get("target_scale", 1.0))
         tl.validate(tl_hp, tl_cfg)
         return (tl_cfg, tl_hp, cacla.CaclaConfig(**config["al"]), esn.ESNConfig(**config["an"]),
                 EnvConfig(**config["env"]))
@@ -181,7 +183,8 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
 
     Args:
         directory: the folder to write.
-        tl_params, tl_hyper: the TL (``hidden``, ``replication`` as ints).
+        tl_params, tl_hyper: the TL (``hidden``, ``replication``, ``image_scale`` and
+            ``target_scale`` as scalars).
         agent, al_config: one AL agent (unbatched).
         net, esn_config: the AN with its fitted readout.
         env_config: the env the agent was trained in.
@@ -190,6 +193,8 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
     directory = pathlib.Path(directory)
     config = {
         "tl": {"hidden": int(tl_hyper.hidden), "replication": int(tl_hyper.replication),
+               "image_scale": float(tl_hyper.image_scale),
+               "target_scale": float(tl_hyper.target_scale),
                "max_hidden": int(tl_params.w1.shape[1]),
                "max_replication": (int(tl_params.w1.shape[0]) - tl.N_PIXELS) // tl.N_SYMBOLS},
         "al": dataclasses.asdict(al_config), "an": dataclasses.asdict(esn_config),
@@ -228,6 +233,6 @@ def load(directory: str | pathlib.Path) -> Robot:
         raise CheckpointError(f"{directory}: config.json but no complete checkpoint")
     tree = ck.restore(step, _like(config))
     ck.close()
-    return Robot(tl=TrainedTL(tree["tl"], int(tl_hp.hidden), int(tl_hp.replication)),
+    return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"]),
                  env_config=env_cfg, config=config)

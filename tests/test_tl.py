@@ -53,6 +53,9 @@ def test_replication_gives_exactly_1500_inputs_at_n20(data):
     (lambda d: tl.validate(tl.TLHyper(hidden=0), tl.TLConfig()), "hidden"),
     (lambda d: tl.validate(tl.TLHyper(replication=0), tl.TLConfig()), "replication"),
     (lambda d: tl.validate(tl.TLHyper(lr=-0.1), tl.TLConfig()), "lr"),
+    (lambda d: tl.validate(tl.TLHyper(image_scale=0.0), tl.TLConfig()), "image_scale"),
+    (lambda d: tl.validate(tl.TLHyper(target_scale=float("nan")), tl.TLConfig()),
+     "target_scale"),
     (lambda d: tl.validate(tl.TLHyper(hidden=80), tl.TLConfig(max_hidden=50)), "max_hidden"),
     (lambda d: tl.TLConfig(epochs=0), "epochs"),
     (lambda d: tl.TLConfig(noise_mode="gaussian"), "noise_mode"),
@@ -121,7 +124,7 @@ def test_localize_uses_the_trained_network(three_seeds, data):
     _, hp, (params, _) = three_seeds
     p0 = jax.tree.map(lambda a: a[0], params)
     preds = [int(tl.localize(p0, jnp.asarray(data.bitmaps[i]), jnp.asarray(data.symbols[i]),
-                             replication=20, hidden=20)) for i in range(0, 216, 9)]
+                             tl.TLHyper(replication=20, hidden=20))) for i in range(0, 216, 9)]
     truth = data.labels[::9]
     assert np.mean(np.array(preds) == truth) > 0.8
 
@@ -140,6 +143,7 @@ def _reference_train(key, hp, cfg, data):
     n_train = int(round(2 / 3 * n_all))
     k_split, _, k_init, k_epochs = jax.random.split(key, 4)
     tr = jax.random.permutation(k_split, n_all)[:n_train]
+    np.testing.assert_array_equal(np.asarray(tl.split_indices(key, n_all)[0]), np.asarray(tr))
     params = tl.init(k_init, hp, cfg)
     x = tl.build_inputs(jnp.asarray(data.bitmaps), jnp.asarray(data.symbols), hp, cfg)
     _, hid_mask = tl.masks(hp, cfg)
@@ -157,10 +161,15 @@ def _reference_train(key, hp, cfg, data):
     return params
 
 
-@pytest.mark.parametrize("budget", [0, 200])
-def test_compact_training_equals_plain_backprop_on_the_replicated_input(data, budget):
+@pytest.mark.parametrize("budget, image_scale, target_scale", [
+    (0, 1.0, 1.0), (200, 1.0, 1.0), (0, 0.6, 3.0), (200, 0.6, 3.0)])
+def test_compact_training_equals_plain_backprop_on_the_replicated_input(
+        data, budget, image_scale, target_scale):
+    # the reference trains on build_inputs' explicit input: on pixels = image_scale, the
+    # target units = target_scale
     subset = tl_data.TLData(*(a[:30] for a in data))
-    hp = tl.TLHyper(hidden=6, replication=4, lr=0.5)
+    hp = tl.TLHyper(hidden=6, replication=4, lr=0.5, image_scale=image_scale,
+                    target_scale=target_scale)
     cfg = tl.TLConfig(epochs=3, max_hidden=8, max_replication=5, eval_every=3,
                       pixel_budget=budget)
     key = jax.random.key(11)
@@ -177,3 +186,34 @@ def test_pixel_budget_checks():
         tl.make_train(tl.TLConfig(pixel_budget=10))
     with pytest.raises(ValueError, match="noise"):
         tl.validate(tl.TLHyper(noise=0.1), tl.TLConfig(pixel_budget=300))
+
+
+def test_build_inputs_scales_pixels_and_target_units_only(data):
+    hp = tl.TLHyper(replication=2, image_scale=0.5, target_scale=4.0)
+    cfg = tl.TLConfig(max_replication=3)
+    x = np.asarray(tl.build_inputs(jnp.asarray(data.bitmaps[:4]), jnp.asarray(data.symbols[:4]),
+                                   hp, cfg))
+    np.testing.assert_array_equal(x[:, :1200], 0.5 * data.bitmaps[:4])
+    for r in range(2):
+        block = x[:, 1200 + 15 * r: 1215 + 15 * r]
+        np.testing.assert_array_equal(block[:, :9], data.symbols[:4, :9])  # colour units
+        np.testing.assert_array_equal(block[:, 9:], 4.0 * data.symbols[:4, 9:])
+    assert not x[:, 1230:].any()  # the third replica is masked
+
+
+def test_lookup_bound_is_exact_when_every_pair_was_seen_and_zero_when_none(data):
+    everything = np.arange(216)
+    assert tl_experiments.lookup_bound(data, everything, everything)["acc"] == 1.0
+    # the training set holds only shape words: colour words have nothing to look up
+    shape_only = everything[data.word < 3]
+    r = tl_experiments.lookup_bound(data, shape_only, everything)
+    assert r["acc_colour_words"] == 0.0 and r["acc_shape_words"] == 1.0
+
+
+def test_reference_classifier_learns_a_separable_problem():
+    x = jax.random.normal(jax.random.key(0), (90, 5))
+    y = jnp.argmax(x[:, :3], axis=1)  # the largest of the first three features
+    for hidden in (0, 16):
+        pred = tl_experiments._adam_classifier(x[:60], y[:60], x[60:], jax.random.key(1),
+                                               hidden, steps=500, lr=0.05)
+        assert float(jnp.mean(pred == y[60:])) > 0.85

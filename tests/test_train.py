@@ -40,7 +40,10 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert tl["accuracy"]["train_acc_mean"] > 0.95 and tl["accuracy"]["test_acc_mean"] > 0.5
     report = (tmp_path / "REPORT.md").read_text()
     assert "| test accuracy, H=50, n=20 | ~95% |" in report and "| push | left |" in report
-    for name in ("accuracy", "fig6", "fig7", "noise", "noise_fresh"):
+    ref = tl["reference"]["learners"]
+    assert ref["lookup"]["test_acc_mean"] > 0.9  # the same splits: the evidence is there
+    assert "| lookup |" in report and "MLP 50 ReLU (Adam)" in report
+    for name in ("accuracy", "reference", "fig6", "fig7", "noise", "noise_fresh"):
         assert (tmp_path / "tl" / f"{name}.png").stat().st_size > 1000
         assert f"tl/{name}.png" in report
     sweeps = data["sweeps"]

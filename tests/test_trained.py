@@ -18,7 +18,7 @@ from grounding_jax.env import EnvConfig
 @pytest.fixture(scope="module")
 def modules():
     k1, k2, k3 = jax.random.split(jax.random.key(0), 3)
-    hp = tl.TLHyper(hidden=50, replication=20)
+    hp = tl.TLHyper(hidden=50, replication=20, **tl.TUNED)
     return {"tl_params": tl.init(k1, hp, tl.TLConfig()), "tl_hyper": hp,
             "agent": cacla.init(k2), "net": esn.init(k3).replace(
                 w_out=jax.random.normal(k3, (50, 9)))}
@@ -44,7 +44,8 @@ def test_save_then_load_gives_the_same_modules(tmp_path, modules):
     data = tl_data.load()
     pos = robot.tl.position(jnp.asarray(data.bitmaps[:5]), jnp.asarray(data.symbols[:5]))
     expect = [int(tl.localize(modules["tl_params"], jnp.asarray(data.bitmaps[i]),
-                              jnp.asarray(data.symbols[i]), 20, 50)) for i in range(5)]
+                              jnp.asarray(data.symbols[i]), modules["tl_hyper"]))
+              for i in range(5)]
     assert pos.tolist() == expect
     assert robot.tl.localize(0, "red") == expect[3]  # configuration 3 = layout 0, "red"
     a, w = robot.an.name(jnp.zeros((5, 40)), jnp.zeros(50))
