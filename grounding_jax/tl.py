@@ -115,8 +115,9 @@ def stack_hyper(rows: list[dict]) -> TLHyper:
 def symbol_scale(hp: TLHyper) -> jax.Array:
     """Per-unit values ``[15]`` of the symbolic units: 1 for the 9 colour units,
     ``target_scale`` for the 6 target units."""
-    return jnp.concatenate([jnp.ones(N_SYMBOLS - 6, jnp.float32),
-                            jnp.full((6,), 1.0, jnp.float32) * hp.target_scale])
+    n_target = len(tl_data.TARGET_WORDS)
+    return jnp.concatenate([jnp.ones(N_SYMBOLS - n_target, jnp.float32),
+                            jnp.full((n_target,), hp.target_scale, jnp.float32)])
 
 
 def validate(hp: TLHyper, config: TLConfig) -> None:
@@ -272,12 +273,13 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
         pix_val = jnp.asarray(np.take_along_axis(data.bitmaps, order, axis=1))
 
     def train(key: jax.Array, hp: TLHyper) -> tuple[TLParams, dict[str, jax.Array]]:
-        k_split, k_noise, k_init, k_epochs = jax.random.split(key, 4)
+        _, k_noise, k_init, k_epochs = jax.random.split(key, 4)  # the first: split_indices
         tr, te = split_indices(key, n_all)
         on = jnp.asarray(hp.image_scale, jnp.float32)  # the value of an "on" pixel
         symbols = symbols_raw * symbol_scale(hp)
         if budget:  # sparse rows are only valid for the clean bitmaps (validate checks)
             pixels = bitmaps * on
+            row_vals = pix_val * on
         else:
             flip = jax.random.bernoulli(k_noise, hp.noise, bitmaps.shape)
             pixels = jnp.where(flip, 1.0 - bitmaps, bitmaps) * on
@@ -309,7 +311,7 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
             wp, u, b1, w2, b2 = st
             sym = symbols[i]
             if budget:
-                rows, vals = pix_idx[i], pix_val[i] * on
+                rows, vals = pix_idx[i], row_vals[i]
                 h = jax.nn.sigmoid(vals @ wp[rows] + sym @ (s0 + n_rep * u) + b1) * hid_mask
             else:
                 pix = pixels[i]

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import tl, tl_data
+from grounding_jax import scene, tl, tl_data
 from grounding_jax._io import pyplot, write_figure
 
 PAPER = {
@@ -158,12 +158,8 @@ def lookup_bound(data: tl_data.TLData, train_idx: np.ndarray, test_idx: np.ndarr
     Returns:
         ``acc``, ``acc_shape_words``, ``acc_colour_words``.
     """
-    from grounding_jax import scene
-
-    shape_order = np.array([scene.SHAPE_ORDERS.index(tuple(scene.LAYOUTS[i][0]))
-                            for i in data.layout])
-    colour_order = np.array([scene.COLOUR_ORDERS.index(tuple(scene.LAYOUTS[i][1]))
-                             for i in data.layout])
+    # scene.LAYOUTS is the product SHAPE_ORDERS x COLOUR_ORDERS, in that order
+    shape_order, colour_order = np.divmod(data.layout, len(scene.COLOUR_ORDERS))
     is_shape = data.word < len(scene.SHAPES)
     order = np.where(is_shape, shape_order, colour_order)
     right = []
@@ -227,8 +223,9 @@ def reference(key: jax.Array, out: pathlib.Path, tl_result: dict, seeds: int,
     data = tl_data.load()
     x = jnp.asarray(tl_data.inputs(data, 20))
     y = jnp.asarray(data.labels)
-    is_shape = data.word < 3
+    is_shape = data.word < len(scene.SHAPES)
     keys = jax.random.split(key, seeds)
+    fit = jax.jit(_adam_classifier, static_argnums=4)
     t = time.perf_counter()
     rows: dict[str, list] = {"lookup": [], "logistic regression (Adam)": [],
                              "MLP 50 ReLU (Adam)": []}
@@ -236,8 +233,7 @@ def reference(key: jax.Array, out: pathlib.Path, tl_result: dict, seeds: int,
         tr, te = (np.asarray(i) for i in tl.split_indices(k))
         rows["lookup"].append(lookup_bound(data, tr, te))
         for label, hidden in (("logistic regression (Adam)", 0), ("MLP 50 ReLU (Adam)", 50)):
-            pred = np.asarray(jax.jit(_adam_classifier, static_argnums=4)(
-                x[tr], y[tr], x[te], jax.random.fold_in(k, hidden), hidden))
+            pred = np.asarray(fit(x[tr], y[tr], x[te], jax.random.fold_in(k, hidden), hidden))
             right = pred == data.labels[te]
             rows[label].append({"acc": float(right.mean()),
                                 "acc_shape_words": float(right[is_shape[te]].mean()),
