@@ -35,6 +35,7 @@ sys.path.insert(0, str(HERE))
 import reference_cacla  # noqa: E402
 from env_throughput import raw_rollout  # noqa: E402
 
+import grounding_jax as gj  # noqa: E402
 from grounding_jax import al, al_experiments, cacla  # noqa: E402
 from grounding_jax.env import EnvConfig  # noqa: E402
 
@@ -85,6 +86,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(HERE.parent / "results" / "benchmarks" /
                                          "al_throughput.json"))
     args = ap.parse_args()
+    gj.enable_compilation_cache()
 
     ref = bench_reference(args.ref_agents, args.episodes)
     print(f"sequential reference: {ref['rl_steps_per_s']:,.0f} RL steps/s "

@@ -129,6 +129,7 @@ def main() -> None:
                     help="also run MJX at batch 256 on a CPU (hung idle on 2-core CPUs here)")
     ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks" / "env_throughput.json"))
     args = ap.parse_args()
+    gj.enable_compilation_cache()
 
     mj = raw_mj_step()
     print(f"raw mj_step loop: {mj:,.0f} physics steps/s (1 thread)")

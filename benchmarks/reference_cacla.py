@@ -22,6 +22,7 @@ import time
 import mujoco
 import numpy as np
 
+import grounding_jax as gj
 from grounding_jax import scene
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -211,6 +212,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--block", type=int, default=25, help="episodes per point of the curve")
     ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks"))
     args = ap.parse_args(argv)
+    gj.enable_compilation_cache()
 
     import jax
     import matplotlib

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
+import grounding_jax as gj  # noqa: E402
 from grounding_jax import tl, tl_data  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -70,6 +71,7 @@ def main() -> None:
                     help="time only this many NumPy runs and scale up (default: all)")
     ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks" / "tl_throughput.json"))
     args = ap.parse_args()
+    gj.enable_compilation_cache()
     data = tl_data.load()
     seeds = args.seeds
     keys = jax.random.split(jax.random.key(0), len(HIDDEN) * seeds)

@@ -1,8 +1,8 @@
 """grounding_jax: Farkaš, Malík & Rebrová (2012) -- iCub learns to point, touch, push and name.
 
-Importing the package switches on JAX's persistent compilation cache, in
-``$GROUNDING_JAX_CACHE`` (default ``~/.cache/grounding_jax/jax``); set
-``GROUNDING_JAX_CACHE=off`` to leave JAX's own setting alone.
+Importing the package changes no JAX setting. ``train.py``, the sweep and experiment CLIs and
+the benchmarks switch on JAX's persistent compilation cache with
+:func:`enable_compilation_cache`; call it yourself to share compiles between your runs.
 """
 
 from __future__ import annotations
@@ -10,14 +10,39 @@ from __future__ import annotations
 import os
 import pathlib
 
+from grounding_jax.env import (
+    Env,
+    EnvConfig,
+    EnvParams,
+    State,
+    Task,
+    make_env,
+    make_task,
+)
+from grounding_jax.trained import Robot, load
+
 __version__ = "0.1.0"
 
+_CACHE_OFF = ("off", "0", "false", "none")
 
-def _enable_compilation_cache() -> str | None:
-    where = os.environ.get("GROUNDING_JAX_CACHE", "")
-    if where.lower() in ("off", "0", "false", "none"):
-        return None
-    path = pathlib.Path(where or pathlib.Path.home() / ".cache" / "grounding_jax" / "jax")
+
+def enable_compilation_cache(path: str | os.PathLike | None = None) -> str | None:
+    """Switch on JAX's persistent compilation cache (a global JAX setting).
+
+    Args:
+        path: the cache folder; default ``$GROUNDING_JAX_CACHE``, else
+            ``~/.cache/grounding_jax/jax``. ``GROUNDING_JAX_CACHE=off`` (or ``0``, ``false``,
+            ``none``) leaves JAX's settings alone when no ``path`` is given.
+
+    Returns:
+        The folder in use, or None when switched off.
+    """
+    if path is None:
+        where = os.environ.get("GROUNDING_JAX_CACHE", "")
+        if where.lower() in _CACHE_OFF:
+            return None
+        path = where or pathlib.Path.home() / ".cache" / "grounding_jax" / "jax"
+    path = pathlib.Path(path)
     path.mkdir(parents=True, exist_ok=True)
     import jax
 
@@ -28,18 +53,5 @@ def _enable_compilation_cache() -> str | None:
     return str(path)
 
 
-COMPILATION_CACHE_DIR = _enable_compilation_cache()
-
-from grounding_jax.env import (  # noqa: E402
-    Env,
-    EnvConfig,
-    EnvParams,
-    State,
-    Task,
-    make_env,
-    make_task,
-)
-from grounding_jax.trained import Robot, load  # noqa: E402
-
 __all__ = ["Env", "EnvConfig", "EnvParams", "State", "Task", "make_env", "make_task",
-           "Robot", "load", "COMPILATION_CACHE_DIR", "__version__"]
+           "Robot", "load", "enable_compilation_cache", "__version__"]

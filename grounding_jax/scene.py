@@ -16,7 +16,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
-ASSETS = pathlib.Path(__file__).resolve().parent.parent / "assets"
+ASSETS = pathlib.Path(__file__).resolve().parent / "assets"  # package data (assets/ links here)
 SCENE_XML = ASSETS / "table_scene.xml"
 POINTING_JSON = ASSETS / "pointing_configs.json"
 URDF_ROBOT = "iCubGazeboV2_5"

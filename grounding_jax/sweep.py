@@ -875,6 +875,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="Ray cluster address, e.g. ray://head:10001 (default: local cluster)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
+    import grounding_jax
+
+    grounding_jax.enable_compilation_cache()
     try:
         if args.executor not in EXECUTORS:
             raise SweepError(f"--executor: unknown value {args.executor!r}; accepted values: "

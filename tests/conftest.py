@@ -9,6 +9,10 @@ import pytest
 import grounding_jax as gj
 from grounding_jax import rollout, scripted
 
+# share compiles between tests (and runs) as the CLIs do; CI points GROUNDING_JAX_CACHE at an
+# empty folder
+gj.enable_compilation_cache()
+
 
 def _scripted_runner(env: gj.Env):
     def run(waypoints, task, params):

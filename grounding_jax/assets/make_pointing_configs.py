@@ -28,7 +28,7 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))  # the checkout
 from grounding_jax import ik, scene  # noqa: E402
 
 DISTANCE = (0.08, 0.15)  # metres from the palm site to the object's centre
