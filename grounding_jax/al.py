@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax import cacla, scene
+from grounding_jax import cacla, rollout, scene
 from grounding_jax._checks import require_int
 from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task, scale_joints
 
@@ -307,23 +307,27 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
     return agents, metrics
 
 
-def make_eval(env_config: EnvConfig | None = None, steps: int | None = None):
-    """Build ``evaluate(agent, key, task, env_params) -> trajectory``: the greedy actor
-    (no exploration) for one episode; the trajectory is the env states after each step,
-    stacked, plus ``hidden``, the actor's hidden activations at each step (for the namer).
+def make_eval(env: Env | EnvConfig | None = None, steps: int | None = None):
+    """Build ``evaluate(agent, key, task, env_params) -> (first, trajectory, hidden)``: the
+    greedy actor (no exploration) for one episode; the trajectory is the env states after
+    each step, stacked, and ``hidden`` the actor's hidden activations at each step (for the
+    namer).
+
+    Args:
+        env: the env (or its static config; default ``EnvConfig()``).
+        steps: steps per episode (default: the env's episode length).
     """
-    env = Env(env_config or EnvConfig())
+    env = env if isinstance(env, Env) else Env(env or EnvConfig())
     n = env.config.episode_length if steps is None else steps
 
     def evaluate(agent: cacla.Agent, key: jax.Array, task: Task,
                  env_params: EnvParams = DEFAULT_PARAMS):
-        def step(state, _):
+        def policy(state, _):
             hidden, a = cacla.actor_apply(agent.actor, state.obs)
-            nxt = env.step(state, a, env_params)
-            return nxt, (nxt, hidden)
+            return a, hidden
 
         first = env.reset(key, task, env_params)
-        _, (traj, hidden) = jax.lax.scan(step, first, None, length=n)
+        traj, hidden = rollout.rollout(env, first, policy, n, env_params)
         return first, traj, hidden
 
     return evaluate

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, scene, scripted
+from grounding_jax import al, cacla, rollout, scene, scripted
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import (
     DEFAULT_PARAMS,
@@ -222,15 +222,11 @@ def make_switch_eval(env_config: EnvConfig = DEFAULT_ENV, steps: int = 100,
     env = Env(dataclasses.replace(env_config, episode_length=steps))
 
     def run(agent, key, first: Task, second: Task, params: EnvParams = DEFAULT_PARAMS):
-        def step(state, t):
-            state = jax.lax.cond(t == switch_at, lambda s: env.set_task(s, second),
-                                 lambda s: s, state)
-            _, a = cacla.actor_apply(agent.actor, state.obs)
-            nxt = env.step(state, a, params)
-            return nxt, nxt
+        def policy(state, _):
+            return cacla.actor_apply(agent.actor, state.obs)[1], None
 
-        _, traj = jax.lax.scan(step, env.reset(key, first, params), jnp.arange(steps))
-        return traj
+        return rollout.rollout(env, env.reset(key, first, params), policy, steps, params,
+                               switch=(switch_at, second))[0]
 
     return run
 
@@ -478,12 +474,13 @@ def exploration_knocks(key: jax.Array, env_config: EnvConfig = DEFAULT_ENV,
         task = task.replace(position=position)
         waypoints = jnp.repeat(poses[position][None], env_config.episode_length, axis=0)
 
-        def body(s, kk):
+        def policy(s, kk):
             a = scripted.tracking_action(waypoints, s.step, s.obs)
-            return env.step(s, a + sigma * jax.random.normal(kk, (4,))), None
+            return a + sigma * jax.random.normal(kk, (4,)), None
 
-        last, _ = jax.lax.scan(body, env.reset(k, task),
-                               jax.random.split(k, env_config.episode_length))
+        traj, _ = rollout.rollout(env, env.reset(k, task), policy, env_config.episode_length,
+                                  xs=jax.random.split(k, env_config.episode_length))
+        last = jax.tree.map(lambda x: x[-1], traj)
         return last.wrong_since >= 0, last.metrics["point_l1"]
 
     run = jax.jit(jax.vmap(episode, in_axes=(0, 0, None)))
@@ -520,7 +517,7 @@ def _summary(table: dict, out: dict) -> dict:
 def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_episodes: int,
         env_config: EnvConfig = DEFAULT_ENV, hyper: dict | None = None,
         checkpoints: tuple[int, ...] = (450,), random_starts: int = 1,
-        decay: dict | None = None) -> dict:
+        decay: dict | None = None, cacla_config: cacla.CaclaConfig | None = None) -> dict:
     """The AL results: success rates (home and random starts) at each of ``checkpoints``
     episodes and at the end, Figs 10, 11, 13 (agent 0 of the final batch) and Fig 14 (a
     no-tricks run of ``no_tricks_episodes``). Writes PNG + JSON under ``out``.
@@ -537,6 +534,7 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
             :data:`TUNED_AL`).
         checkpoints: extra episode counts at which success is measured.
         random_starts: random start poses per point task and layout (1: 108 starts).
+        cacla_config: static CACLA config (network sizes; default ``CaclaConfig()``).
 
     Returns:
         (results dict -- what the JSON files hold, the trained agents [seeds]).
@@ -545,7 +543,8 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
     decay = dict(TUNED_AL if decay is None else decay)
     hp = al.validate(al.ALHyper(cacla=cacla.CaclaHyper(**hyper), **decay))
     k_train, k_nt, k_home, k_rand, k10, k11, k13, k_knock = jax.random.split(key, 8)
-    cfg = al.ALConfig(env=env_config, phase1_episodes=phase1, phase2_episodes=phase2)
+    cfg = al.ALConfig(env=env_config, cacla=cacla_config or cacla.CaclaConfig(),
+                      phase1_episodes=phase1, phase2_episodes=phase2)
     home = make_success(env_config)
     rand = make_success(env_config, starts=random_starts, actions=(0,))
     switch = make_switch_success(env_config)
@@ -664,6 +663,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--field", default="executed_target",
                     help="the grid field whose points are compared with the base")
     args = ap.parse_args(argv)
+    import grounding_jax
+
+    grounding_jax.enable_compilation_cache()
     try:
         spec = sweep.load_spec(args.file)
         if args.field not in spec.grid:

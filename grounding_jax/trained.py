@@ -20,6 +20,7 @@ import dataclasses
 import os
 import pathlib
 import shutil
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -116,27 +117,47 @@ class Robot:
     an: TrainedAN
     env_config: EnvConfig
     config: dict[str, Any]
+    # perform's compiled episode, one per step count (filled on first use)
+    _performers: dict[int, Callable] = dataclasses.field(
+        default_factory=dict, init=False, repr=False, compare=False)
+
+    def _performer(self, steps: int) -> Callable:
+        if steps not in self._performers:
+            evaluate = al.make_eval(self.env_config, steps)
+
+            # the modules' arrays are arguments, not constants baked into the compile
+            def run(agent, tl_params, net, key, task, params, bitmap, symbols):
+                _, traj, hidden = evaluate(agent, key, task, params)
+                tl_h = TrainedTL(tl_params, self.tl.hyper).hidden_layer(bitmap, symbols)
+                return traj, TrainedAN(net).outputs(hidden, tl_h)[-1]
+
+            self._performers[steps] = jax.jit(run)
+        return self._performers[steps]
 
     def perform(self, action: str, word: str, layout: int = 0, steps: int = 100,
                 key: jax.Array | None = None, params: EnvParams = DEFAULT_PARAMS) -> dict:
         """Hear "<action> <word>" in scene ``layout``: the TL finds the object, the actor
         does the action for ``steps`` steps, the AN names what was done.
 
+        The episode is compiled on the first call for a step count; later calls reuse it.
+
         Returns:
             ``position`` (the TL's answer), ``true_position``, ``final_reward``,
             ``trajectory`` (env states after each step) and ``named`` (action, target word).
         """
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
         position = self.tl.localize(layout, word)
         task = make_task(action, position, layout)
-        evaluate = al.make_eval(self.env_config, steps)
         key = jax.random.key(0) if key is None else key
-        _, traj, hidden = evaluate(self.al.agent, key, task, params)
-        tl_h = self.tl.hidden_layer(*_configuration(layout, word))
+        traj, named = self._performer(steps)(self.al.agent, self.tl.params, self.an.net, key,
+                                             task, params, *_configuration(layout, word))
+        a, w = esn.decode(named)
         return {"position": scene.POSITIONS[position],
                 "true_position": scene.POSITIONS[tl_data.label_of(layout,
                                                                   tl_data.word_index(word))],
                 "final_reward": float(traj.reward[-1]), "trajectory": traj,
-                "named": self.an.name(hidden, tl_h)}
+                "named": (scene.ACTIONS[int(a)], tl_data.TARGET_WORDS[int(w)])}
 
 
 def _configuration(layout: int, word: str) -> tuple[jax.Array, jax.Array]:

@@ -85,3 +85,25 @@ def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
             f.write_bytes(b"\0" * 10)
     with pytest.raises(CheckpointError, match="cannot read"):
         gj.load(tmp_path / "m")
+
+
+def test_perform_compiles_once_per_step_count_and_answers_as_the_modules_do(tmp_path, modules):
+    from grounding_jax import al
+
+    _save(tmp_path / "m", modules)
+    robot = gj.load(tmp_path / "m")
+    outs = [robot.perform("push", "red", layout=3, steps=4),
+            robot.perform("touch", "box", layout=7, steps=4)]
+    assert list(robot._performers) == [4] and robot._performers[4]._cache_size() == 1
+    # the same as running the pieces one by one
+    out = outs[1]
+    position = robot.tl.localize(7, "box")
+    assert out["position"] == ("left", "middle", "right")[position]
+    _, traj, hidden = al.make_eval(robot.env_config, 4)(
+        robot.al.agent, jax.random.key(0), gj.make_task("touch", position, 7))
+    np.testing.assert_allclose(out["trajectory"].obs, traj.obs, atol=1e-5)
+    bitmap = jnp.asarray(tl_data.cached_bitmaps()[7], jnp.float32)
+    tl_h = robot.tl.hidden_layer(bitmap, jnp.asarray(tl_data.symbol_units(7, "box")))
+    assert out["named"] == robot.an.name(hidden, tl_h)
+    with pytest.raises(ValueError, match="steps"):
+        robot.perform("push", "red", layout=3, steps=0)
