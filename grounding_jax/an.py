@@ -216,7 +216,8 @@ def fig12(key: jax.Array, home: dict, out: pathlib.Path, skip: int = 0, every: i
 
 
 def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, steps: int = 100,
-        env_config: EnvConfig = DEFAULT_ENV, start_noise: float = 0.5) -> tuple[dict, dict]:
+        env_config: EnvConfig = DEFAULT_ENV, start_noise: float = 0.5,
+        esn_config: esn.ESNConfig = DEFAULT_ESN) -> tuple[dict, dict]:
     """The AN results: accuracy over ``seeds`` ESNs (train, test, test from random starts),
     the settling time, Fig 15 and the SOM (Fig 12). Writes JSON + PNG under ``out``.
 
@@ -229,17 +230,20 @@ def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, ste
         steps: steps per sequence (paper: 100).
         env_config: static env config.
         start_noise: half-width of the random arm starts of the random-start test.
+        esn_config: the ESN's static config.
 
     Returns:
         (results, the trained modules of seed 0: ``tl_params``, ``tl_hyper``, ``net``, the
-        ESN with its readout -- what :func:`grounding_jax.trained.save` stores).
+        ESN with its readout, and ``esn_config`` -- what :func:`grounding_jax.trained.save`
+        stores).
     """
     out = pathlib.Path(out)
     k_tl, k_home, k_rand, k_esn, k_som = jax.random.split(key, 5)
     tl_params, tl_hyper, tl_h, tl_acc = train_tl(k_tl, tl_epochs)
     home = dataset(agent, tl_h, k_home, steps, 0.0, env_config)
     rand = dataset(agent, tl_h, k_rand, steps, start_noise, env_config)
-    runs = [train_namer(k, home, rand) for k in jax.random.split(k_esn, seeds)]
+    runs = [train_namer(k, home, rand, config=esn_config)
+            for k in jax.random.split(k_esn, seeds)]
     res = {"seeds": seeds, "steps": steps, "tl_test_acc": tl_acc, "paper": PAPER}
     for name in ("train", "test", "test_random"):
         accs = [r[name]["acc"] for r in runs]
@@ -251,4 +255,5 @@ def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, ste
     res["fig15"] = fig15(runs[0], home, rand, out)
     res["fig12"] = fig12(k_som, home, out)
     atomic_write_text(out / "an.json", json.dumps(res, indent=1) + "\n")
-    return res, {"tl_params": tl_params, "tl_hyper": tl_hyper, "net": runs[0]["net"]}
+    return res, {"tl_params": tl_params, "tl_hyper": tl_hyper, "net": runs[0]["net"],
+                 "esn_config": esn_config}
