@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax import cacla, rollout, scene
+from grounding_jax import cacla, rollout, scene, tasks
 from grounding_jax._checks import require_int
 from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task, scale_joints
 
@@ -52,7 +52,7 @@ class ALConfig:
             require_int(name, getattr(self, name), 0)
         if self.phase1_episodes + self.phase2_episodes < 1:
             raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
-        for name, n in (("actions", 3), ("positions", 3)):
+        for name, n in (("actions", tasks.N_ACTIONS), ("positions", tasks.N_POSITIONS)):
             v = getattr(self, name)
             if not v or any(not 0 <= int(i) < n for i in v):
                 raise ValueError(f"{name}: must be a non-empty tuple of indices in 0..{n - 1}, "

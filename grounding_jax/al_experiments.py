@@ -37,6 +37,7 @@ from grounding_jax.env import (
     make_task,
     scale_joints,
 )
+from grounding_jax.tasks import N_ACTIONS, N_POSITIONS
 
 DEFAULT_ENV = EnvConfig()
 EVAL_STEPS = 100
@@ -61,7 +62,7 @@ def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS, actions: tuple[int, ...] =
               ) -> Task:
     """Every (action, position, layout) combination of ``actions`` as a batched
     :class:`Task`."""
-    a, p, lay = np.meshgrid(np.asarray(actions), np.arange(3), np.asarray(layouts),
+    a, p, lay = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.asarray(layouts),
                             indexing="ij")
     return Task(*(jnp.asarray(x.ravel(), jnp.int32) for x in (a, p, lay)))
 
@@ -235,9 +236,10 @@ def switch_pairs(layouts: tuple[int, ...] = SHAPE_LAYOUTS) -> tuple[Task, Task]:
     """The goal switches of the paper's Fig 13 test, systematically: every first task (3
     actions x 3 positions x ``layouts``) followed by each task that differs in the action
     alone or in the position alone (4 per first task). Returns (first, second) batches."""
-    rows = [(a, p, lay, a2, p2) for a in range(3) for p in range(3) for lay in layouts
-            for a2, p2 in [(b, p) for b in range(3) if b != a] + [(a, q) for q in range(3)
-                                                                   if q != p]]
+    rows = [(a, p, lay, a2, p2) for a in range(N_ACTIONS) for p in range(N_POSITIONS)
+            for lay in layouts
+            for a2, p2 in [(b, p) for b in range(N_ACTIONS) if b != a]
+            + [(a, q) for q in range(N_POSITIONS) if q != p]]
     r = np.asarray(rows, np.int32).T
     return Task(r[0], r[1], r[2]), Task(r[3], r[4], r[2])
 

@@ -24,6 +24,7 @@ import numpy as np
 from grounding_jax import al, cacla, esn, scene, som, tl, tl_data
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
+from grounding_jax.tasks import N_ACTIONS
 
 PAPER = {"train_acc": 0.99, "test_acc": 0.99}
 DEFAULT_ENV = EnvConfig()
@@ -76,8 +77,8 @@ def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 1
         ``position``, ``config`` [648] (configuration index 0..215).
     """
     data = tl_data.load()
-    config = np.repeat(np.arange(tl_data.N_CONFIGS), 3)
-    action = np.tile(np.arange(3), tl_data.N_CONFIGS)
+    config = np.repeat(np.arange(tl_data.N_CONFIGS), N_ACTIONS)
+    action = np.tile(np.arange(N_ACTIONS), tl_data.N_CONFIGS)
     tasks = Task(action=jnp.asarray(action, jnp.int32),
                  position=jnp.asarray(data.labels[config], jnp.int32),
                  layout=jnp.asarray(data.layout[config], jnp.int32))

@@ -26,10 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from grounding_jax import tasks
 from grounding_jax._checks import require_int
 
-OBS_SIZE = 11
-ACTION_SIZE = 4
+OBS_SIZE, ACTION_SIZE = tasks.OBS_SIZE, tasks.ACTION_SIZE
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The point/touch/push environment as pure functions: ``reset(key, task)``, ``step(state, a)``.
 
-Semantics follow the paper (section 2.2) and ``SPEC.md``:
+Semantics follow the paper (section 2.2; README "The scene" states what we measured here):
 
 - observation (11): the 4 arm joints scaled to [-1, 1] by eq. 1 with the paper's limits, the
   touch bit (the arm touches an object), the action one-hot (point/touch/push) and the
@@ -32,11 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax import physics, scene
+from grounding_jax import physics, scene, tasks
 from grounding_jax._checks import require_int
 
-OBS_SIZE = 11
-ACTION_SIZE = 4
+OBS_SIZE, ACTION_SIZE = tasks.OBS_SIZE, tasks.ACTION_SIZE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,7 +249,8 @@ class Env:
         contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
         obs = jnp.concatenate([
             joints, jnp.any(contacts).astype(jnp.float32)[None],
-            jax.nn.one_hot(task.action, 3), jax.nn.one_hot(task.position, 3)
+            jax.nn.one_hot(task.action, tasks.N_ACTIONS),
+            jax.nn.one_hot(task.position, tasks.N_POSITIONS)
         ])
         target_shape = self._slot_shape[task.layout, task.position]
         point = -jnp.sum(jnp.abs(joints - self._pointing[task.position]))
@@ -355,8 +355,8 @@ class Env:
         refer to the new task, measured from where the objects stood at reset.
         """
         _check_task(task)
-        obs = state.obs.at[5:8].set(jax.nn.one_hot(task.action, 3))
-        obs = obs.at[8:11].set(jax.nn.one_hot(task.position, 3))
+        obs = state.obs.at[tasks.OBS_ACTION].set(jax.nn.one_hot(task.action, tasks.N_ACTIONS))
+        obs = obs.at[tasks.OBS_POSITION].set(jax.nn.one_hot(task.position, tasks.N_POSITIONS))
         return state.replace(task=task, obs=obs)
 
 

@@ -15,10 +15,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from grounding_jax import tasks
 from grounding_jax._checks import require_int
 
-N_ACTIONS = 3
-N_WORDS = 6
+N_ACTIONS, N_WORDS = tasks.N_ACTIONS, tasks.N_WORDS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,7 +35,7 @@ class ESNConfig:
 
     n_in: int = 90
     n_res: int = 50
-    n_out: int = N_ACTIONS + N_WORDS
+    n_out: int = tasks.SENTENCE_SIZE
     spectral_radius: float = 0.9
     connectivity: float = 0.2
 

@@ -16,6 +16,8 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from grounding_jax import tasks
+
 ASSETS = pathlib.Path(__file__).resolve().parent / "assets"  # package data (assets/ links here)
 SCENE_XML = ASSETS / "table_scene.xml"
 POINTING_JSON = ASSETS / "pointing_configs.json"
@@ -27,10 +29,7 @@ PAPER_LIMITS_DEG = np.array([[-95.0, 90.0], [0.0, 161.0], [-37.0, 100.0], [-6.0,
 #: Start pose of every episode (the URDF zero pose puts the hand inside the table).
 HOME_POSE_DEG = np.array([-60.0, 110.0, 67.0, 97.0])
 
-ACTIONS = ("point", "touch", "push")
-POSITIONS = ("left", "middle", "right")
-SHAPES = ("box", "cylinder", "sphere")
-COLOURS = ("red", "green", "blue")
+ACTIONS, POSITIONS, SHAPES, COLOURS = tasks.ACTIONS, tasks.POSITIONS, tasks.SHAPES, tasks.COLOURS
 # Saturated and dark enough that every face is well below the white table in grey (vision).
 COLOUR_RGBA = {
     "red": (0.75, 0.08, 0.08, 1.0), "green": (0.08, 0.5, 0.08, 1.0), "blue": (0.1, 0.15, 0.75, 1.0)

@@ -17,11 +17,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from grounding_jax import scene
+from grounding_jax import scene, tasks
 from grounding_jax._checks import require_int
 
 BITMAPS_NPZ = scene.ASSETS / "tl_bitmaps.npz"
-TARGET_WORDS = (*scene.SHAPES, *scene.COLOURS)  # box, cylinder, sphere, red, green, blue
+TARGET_WORDS = tasks.TARGET_WORDS  # box, cylinder, sphere, red, green, blue
 N_CONFIGS = len(scene.LAYOUTS) * len(TARGET_WORDS)  # 216
 
 

@@ -45,6 +45,24 @@ def test_reset_observation(env_c):
                                scene.object_positions()[slots], atol=1e-6)
 
 
+
+def test_the_task_vocabulary_sets_the_observation_layout_and_the_sizes(env_c):
+    from grounding_jax import cacla, esn, tasks
+
+    st = env_c.reset(jax.random.key(0), gj.make_task("touch", "right", 5))
+    assert st.obs.shape == (tasks.OBS_SIZE,)
+    np.testing.assert_array_equal(st.obs[tasks.OBS_ACTION], np.eye(tasks.N_ACTIONS)[1])
+    np.testing.assert_array_equal(st.obs[tasks.OBS_POSITION], np.eye(tasks.N_POSITIONS)[2])
+    sw = env_c.set_task(st, gj.make_task("push", "left", 5))
+    np.testing.assert_array_equal(sw.obs[tasks.OBS_ACTION], np.eye(tasks.N_ACTIONS)[2])
+    np.testing.assert_array_equal(sw.obs[tasks.OBS_POSITION], np.eye(tasks.N_POSITIONS)[0])
+    np.testing.assert_array_equal(sw.obs[tasks.OBS_JOINTS], st.obs[tasks.OBS_JOINTS])
+    agent = cacla.init(jax.random.key(0))
+    hidden, action = cacla.actor_apply(agent.actor, st.obs)
+    assert action.shape == (tasks.ACTION_SIZE,) and cacla.critic_apply(agent.critic,
+                                                                          st.obs).shape == ()
+    assert esn.ESNConfig().n_out == tasks.N_ACTIONS + len(tasks.TARGET_WORDS)
+
 def _expected_reward(state, action: int, position: int, layout: int) -> float:
     """The paper's three rewards, computed here from the raw state with NumPy."""
     idx = scene.index()
