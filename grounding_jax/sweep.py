@@ -856,6 +856,9 @@ def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> l
 def _ray_task(spec: SweepSpec, group: int, run_keys: np.ndarray, folder: str,
               resume: bool) -> dict:
     """A Ray worker's share: one static group (checkpoints in the shared output folder)."""
+    import grounding_jax
+
+    grounding_jax.enable_compilation_cache()  # the worker is a process of ours, as the CLI is
     return jax.device_get(run_group(spec, group, run_keys, pathlib.Path(folder), resume))
 
 
