@@ -104,8 +104,7 @@ class TrainedAN:
 
     def name(self, actor_hidden: jax.Array, tl_hidden: jax.Array) -> tuple[str, str]:
         """(action word, target word) at the sequence's last step."""
-        a, w = esn.decode(self.outputs(actor_hidden, tl_hidden)[-1])
-        return scene.ACTIONS[int(a)], tl_data.TARGET_WORDS[int(w)]
+        return _words(self.outputs(actor_hidden, tl_hidden)[-1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,17 +146,23 @@ class Robot:
         """
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
-        position = self.tl.localize(layout, word)
+        bitmap, symbols = _configuration(layout, word)  # read once: localize and name use it
+        position = int(self.tl.position(bitmap, symbols))
         task = make_task(action, position, layout)
         key = jax.random.key(0) if key is None else key
         traj, named = self._performer(steps)(self.al.agent, self.tl.params, self.an.net, key,
-                                             task, params, *_configuration(layout, word))
-        a, w = esn.decode(named)
+                                             task, params, bitmap, symbols)
         return {"position": scene.POSITIONS[position],
                 "true_position": scene.POSITIONS[tl_data.label_of(layout,
                                                                   tl_data.word_index(word))],
                 "final_reward": float(traj.reward[-1]), "trajectory": traj,
-                "named": (scene.ACTIONS[int(a)], tl_data.TARGET_WORDS[int(w)])}
+                "named": _words(named)}
+
+
+def _words(outputs: jax.Array) -> tuple[str, str]:
+    """(action word, target word) of the AN's 9 outputs at one step."""
+    a, w = esn.decode(outputs)
+    return scene.ACTIONS[int(a)], tl_data.TARGET_WORDS[int(w)]
 
 
 def _configuration(layout: int, word: str) -> tuple[jax.Array, jax.Array]:
