@@ -1,9 +1,14 @@
-"""Small input checks shared by the configs: clear ValueErrors that name the field."""
+"""Input checks shared by the configs and the sweep runner: clear ValueErrors that name the
+field. Each dataclass of traced values keeps one table of :class:`Rule` s; its ``validate``
+and the sweep runner's field checks both read that table."""
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from typing import Any
 
+import jax
 import numpy as np
 
 
@@ -12,3 +17,47 @@ def require_int(name: str, value: Any, minimum: int) -> int:
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
         raise ValueError(f"{name}: must be an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class Rule:
+    """What a traced field accepts.
+
+    Attributes:
+        text: the accepted values, as an error message says them ("> 0", "in [0, 1]").
+        ok: elementwise predicate on a float array (a scalar, or a batch of values).
+        type: the Python type a sweep file gives it (float, or int for counts and flags).
+    """
+
+    text: str
+    ok: Callable[[np.ndarray], Any]
+    type: type = float
+
+    def holds(self, value: Any) -> bool:
+        """Every element finite and accepted."""
+        arr = np.asarray(value, dtype=float)
+        return bool(np.all(np.isfinite(arr)) and np.all(self.ok(arr)))
+
+
+POSITIVE = Rule("> 0", lambda v: v > 0)
+NON_NEGATIVE = Rule(">= 0", lambda v: v >= 0)
+UNIT_CLOSED = Rule("in [0, 1]", lambda v: (v >= 0) & (v <= 1))
+UNIT_OPEN_LEFT = Rule("in (0, 1]", lambda v: (v > 0) & (v <= 1))
+FLAG = Rule("0 or 1", lambda v: (v == 0) | (v == 1), int)
+FINITE = Rule("a finite number", lambda v: np.ones_like(v, bool))
+
+
+def integer_at_least(n: int, text: str = "") -> Rule:
+    """An integer >= ``n`` (the value may be stored as a float in a batch)."""
+    return Rule(text or f"an integer >= {n}", lambda v: (v >= n) & (v == np.round(v)), int)
+
+
+def check_rules(obj: Any, rules: dict[str, Rule]) -> None:
+    """ValueError naming the first field of ``obj`` whose concrete value breaks its rule
+    (traced values are skipped: they were checked before tracing)."""
+    for name, rule in rules.items():
+        v = getattr(obj, name)
+        if isinstance(v, jax.core.Tracer):
+            continue
+        if not rule.holds(v):
+            raise ValueError(f"{name}: must be {rule.text}, got {v!r}")

@@ -14,11 +14,18 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from grounding_jax import cacla, rollout, scene, tasks
-from grounding_jax._checks import require_int
+from grounding_jax._checks import (
+    FLAG,
+    POSITIVE,
+    UNIT_OPEN_LEFT,
+    Rule,
+    check_rules,
+    integer_at_least,
+    require_int,
+)
 from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task, scale_joints
 
 #: (phase-1 episodes, phase-2 episodes)
@@ -34,7 +41,8 @@ class ALConfig:
         cacla: network sizes, CACLA+Var.
         phase1_episodes: episodes with the phase-1 actor rule (reward rose).
         phase2_episodes: episodes of plain CACLA after them.
-        actions: action indices to draw tasks from (default all three).
+        actions: action indices to draw tasks from (None, the default: every action of the
+            env's task set).
         positions: position indices to draw tasks from (default all three).
         random_layout: draw the layout per episode (else layout 0 always).
     """
@@ -43,7 +51,7 @@ class ALConfig:
     cacla: cacla.CaclaConfig = cacla.CaclaConfig()
     phase1_episodes: int = 150
     phase2_episodes: int = 300
-    actions: tuple[int, ...] = (0, 1, 2)
+    actions: tuple[int, ...] | None = None
     positions: tuple[int, ...] = (0, 1, 2)
     random_layout: bool = True
 
@@ -52,7 +60,13 @@ class ALConfig:
             require_int(name, getattr(self, name), 0)
         if self.phase1_episodes + self.phase2_episodes < 1:
             raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
-        for name, n in (("actions", tasks.N_ACTIONS), ("positions", tasks.N_POSITIONS)):
+        n_actions = self.env.tasks.n_actions
+        if self.actions is None:
+            object.__setattr__(self, "actions", tuple(range(n_actions)))
+        if self.cacla.task_set != self.env.task_set:
+            raise ValueError(f"cacla.task_set: must be the env's task set "
+                             f"{self.env.task_set!r}, got {self.cacla.task_set!r}")
+        for name, n in (("actions", n_actions), ("positions", tasks.N_POSITIONS)):
             v = getattr(self, name)
             if not v or any(not 0 <= int(i) < n for i in v):
                 raise ValueError(f"{name}: must be a non-empty tuple of indices in 0..{n - 1}, "
@@ -106,30 +120,21 @@ class ALHyper:
     executed_target: Any = 0.0
 
 
+#: What each of :class:`ALHyper`'s own fields accepts (``validate`` and the sweep runner read
+#: it; the learner's and the env's fields have their own tables).
+HYPER_RULES: dict[str, Rule] = {
+    "actor_lr_decay": UNIT_OPEN_LEFT, "critic_lr_decay": UNIT_OPEN_LEFT,
+    "sigma_decay": UNIT_OPEN_LEFT, "actor_init_scale": POSITIVE, "executed_target": FLAG,
+    "actor_units": integer_at_least(0, "an integer >= 0 (0: all units)"),
+    "critic_units": integer_at_least(0, "an integer >= 0 (0: all units)"),
+}
+
+
 def validate(hp: ALHyper) -> ALHyper:
     """ValueError naming the field for bad concrete values (before any compile)."""
     cacla.validate(hp.cacla)
     hp.env.validate()
-    for name in ("actor_lr_decay", "critic_lr_decay", "sigma_decay"):
-        v = getattr(hp, name)
-        if not isinstance(v, jax.core.Tracer):
-            arr = np.asarray(v, dtype=float)
-            if not np.all(np.isfinite(arr)) or not np.all((arr > 0) & (arr <= 1)):
-                raise ValueError(f"{name}: must be in (0, 1], got {v!r}")
-    v = hp.actor_init_scale
-    if not isinstance(v, jax.core.Tracer):
-        arr = np.asarray(v, dtype=float)
-        if not np.all(np.isfinite(arr)) or not np.all(arr > 0):
-            raise ValueError(f"actor_init_scale: must be > 0, got {v!r}")
-    v = hp.executed_target
-    if not isinstance(v, jax.core.Tracer) and not np.all(np.isin(np.asarray(v), (0, 1))):
-        raise ValueError(f"executed_target: must be 0 or 1, got {v!r}")
-    for name in ("actor_units", "critic_units"):
-        v = getattr(hp, name)
-        if not isinstance(v, jax.core.Tracer):
-            arr = np.asarray(v)
-            if not np.all(arr >= 0) or not np.all(arr == np.round(arr)):
-                raise ValueError(f"{name}: must be an integer >= 0 (0: all units), got {v!r}")
+    check_rules(hp, HYPER_RULES)
     return hp
 
 

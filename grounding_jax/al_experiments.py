@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, rollout, scene, scripted
+from grounding_jax import al, cacla, rollout, scene, scripted, tasks
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import (
     DEFAULT_PARAMS,
@@ -41,12 +41,9 @@ from grounding_jax.tasks import N_ACTIONS, N_POSITIONS
 
 DEFAULT_ENV = EnvConfig()
 EVAL_STEPS = 100
-POINT_L1 = 0.1
-POINT_STILL = 0.02
-POINT_MOVED = 0.01
-STILL_LAST = 10
-TOUCH_MOVED = 0.03
-PUSH_MOVED = 0.02
+# the criteria live with the actions' success rules in tasks.py
+POINT_L1, POINT_STILL, POINT_MOVED = tasks.POINT_L1, tasks.POINT_STILL, tasks.POINT_MOVED
+STILL_LAST, TOUCH_MOVED, PUSH_MOVED = tasks.STILL_LAST, tasks.TOUCH_MOVED, tasks.PUSH_MOVED
 #: half-width (scaled joint units) of the random starts around home (Fig 11 and the issue)
 RANDOM_START_NOISE = 0.5
 
@@ -67,7 +64,8 @@ def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS, actions: tuple[int, ...] =
     return Task(*(jnp.asarray(x.ravel(), jnp.int32) for x in (a, p, lay)))
 
 
-def episode_success(traj, task: Task, since: int = 0) -> dict[str, jax.Array]:
+def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = tasks.PAPER
+                    ) -> dict[str, jax.Array]:
     """Success of one greedy episode from its stacked states (see module doc).
 
     Args:
@@ -76,6 +74,7 @@ def episode_success(traj, task: Task, since: int = 0) -> dict[str, jax.Array]:
         since: steps before this one are not judged (a goal switch: the second task's
             touch must come in the second half of what is left, and only objects that move
             after the switch count against it).
+        task_set: whose actions' success rules judge (see :mod:`grounding_jax.tasks`).
 
     Returns:
         ``success`` (0/1), and the quantities it is judged on: ``final_point_l1``,
@@ -103,12 +102,11 @@ def episode_success(traj, task: Task, since: int = 0) -> dict[str, jax.Array]:
     else:
         wrong = at(traj.wrong_since) >= 0
         moved = at(traj.metrics["target_moved"])
-    ok = jnp.stack([(at(l1) < POINT_L1) & (l1_range < POINT_STILL) & (moved < POINT_MOVED),
-                    touched & (moved < TOUCH_MOVED), moved >= PUSH_MOVED]) & ~wrong
-    return {"success": ok[task.action].astype(jnp.float32), "final_point_l1": at(l1),
-            "point_l1_range": l1_range, "touched_late": touched.astype(jnp.float32),
-            "target_moved": moved, "wrong_moved": wrong.astype(jnp.float32),
-            "final_reward": at(traj.reward)}
+    out = {"final_point_l1": at(l1), "point_l1_range": l1_range,
+           "touched_late": touched.astype(jnp.float32), "target_moved": moved,
+           "wrong_moved": wrong.astype(jnp.float32), "final_reward": at(traj.reward)}
+    ok = task_set.success(task.action, out) & ~wrong
+    return {"success": ok.astype(jnp.float32), **out}
 
 
 def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = ALL_LAYOUTS,
@@ -131,7 +129,7 @@ def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] =
 
     def one(agent, key, task, params):
         _, traj, _ = evaluate(agent, key, task, params)
-        return episode_success(traj, task)
+        return episode_success(traj, task, task_set=env_config.tasks)
 
     over_tasks = jax.vmap(one, in_axes=(None, 0, 0, None))
     over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
@@ -260,7 +258,8 @@ def make_switch_success(env_config: EnvConfig = DEFAULT_ENV, steps: int = EVAL_S
     params = DEFAULT_PARAMS.replace(wrong_move_extra_steps=steps + 1)
 
     def one(agent, key, t1, t2):
-        return episode_success(run(agent, key, t1, t2, params), t2, since=switch_at)
+        return episode_success(run(agent, key, t1, t2, params), t2, since=switch_at,
+                               task_set=env_config.tasks)
 
     over_pairs = jax.vmap(one, in_axes=(None, None, 0, 0))
 

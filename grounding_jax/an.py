@@ -22,9 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import al, cacla, esn, scene, som, tl, tl_data
+from grounding_jax import tasks as tasks_lib
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
-from grounding_jax.tasks import N_ACTIONS
 
 PAPER = {"train_acc": 0.99, "test_acc": 0.99}
 DEFAULT_ENV = EnvConfig()
@@ -70,15 +70,17 @@ def actor_sequences(agent: cacla.Agent, key: jax.Array, tasks: Task, steps: int,
 
 def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 100,
             start_noise: float = 0.0, env_config: EnvConfig = DEFAULT_ENV) -> dict:
-    """All 648 sequences (216 configurations x 3 actions).
+    """All sequences: 216 configurations x the actions of ``env_config``'s task set (648 for
+    the paper's 3).
 
     Returns:
         ``inputs`` [648, steps, 90], ``actor_hidden`` [648, steps, 40], ``action``, ``word``,
         ``position``, ``config`` [648] (configuration index 0..215).
     """
     data = tl_data.load()
-    config = np.repeat(np.arange(tl_data.N_CONFIGS), N_ACTIONS)
-    action = np.tile(np.arange(N_ACTIONS), tl_data.N_CONFIGS)
+    n_actions = env_config.tasks.n_actions
+    config = np.repeat(np.arange(tl_data.N_CONFIGS), n_actions)
+    action = np.tile(np.arange(n_actions), tl_data.N_CONFIGS)
     tasks = Task(action=jnp.asarray(action, jnp.int32),
                  position=jnp.asarray(data.labels[config], jnp.int32),
                  layout=jnp.asarray(data.layout[config], jnp.int32))
@@ -94,9 +96,9 @@ def _states(esn_net: esn.ESN, inputs: np.ndarray, x0: jax.Array) -> jax.Array:
     return jax.vmap(lambda u, x: esn.run(esn_net, u, x))(jnp.asarray(inputs), x0)
 
 
-def _correct(esn_net: esn.ESN, states: jax.Array, action, word) -> np.ndarray:
+def _correct(esn_net: esn.ESN, states: jax.Array, action, word, n_actions: int) -> np.ndarray:
     """``[N, T]``: both decoded words right at each step."""
-    a, w = esn.decode(esn.apply(esn_net, states))
+    a, w = esn.decode(esn.apply(esn_net, states), n_actions)
     return (np.asarray(a) == np.asarray(action)[:, None]) & (np.asarray(w) ==
                                                              np.asarray(word)[:, None])
 
@@ -113,6 +115,7 @@ def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 
     """One seed: split, init the ESN, fit the readout on the training sequences (home starts,
     zero initial state), and name train / test / random-start test sequences."""
     k_split, k_init, k_x0 = jax.random.split(key, 3)
+    n_actions = tasks_lib.get(config.task_set).n_actions
     perm = np.asarray(jax.random.permutation(k_split, tl_data.N_CONFIGS))
     n_train = int(round(train_fraction * tl_data.N_CONFIGS))
     train_cfg = np.zeros(tl_data.N_CONFIGS, bool)
@@ -120,7 +123,7 @@ def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 
     tr, te = train_cfg[home["config"]], ~train_cfg[home["config"]]
     net = esn.init(k_init, config)
     states = _states(net, home["inputs"][tr], jnp.zeros((int(tr.sum()), config.n_res)))
-    d = esn.targets(jnp.asarray(home["action"][tr]), jnp.asarray(home["word"][tr]))
+    d = esn.targets(jnp.asarray(home["action"][tr]), jnp.asarray(home["word"][tr]), n_actions)
     d = jnp.broadcast_to(d[:, None], states.shape[:2] + (d.shape[-1],))
     net = net.replace(w_out=esn.fit_readout(states.reshape(-1, config.n_res),
                                             d.reshape(-1, d.shape[-1]), ridge))
@@ -132,7 +135,7 @@ def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 
                                ("test", home, te, _states(net, home["inputs"][te], zeros_te)),
                                ("test_random", rand, te,
                                 _states(net, rand["inputs"][te], x0_rand))):
-        ok = _correct(net, st, src["action"][sel], src["word"][sel])
+        ok = _correct(net, st, src["action"][sel], src["word"][sel], n_actions)
         settle = _settle(ok)
         out[name] = {"acc": float(ok[:, -1].mean()), "acc_per_step": ok.mean(0).tolist(),
                      "settle_mean": float(settle.mean()), "settle_median": float(np.median(settle))}

@@ -27,9 +27,15 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import tasks
-from grounding_jax._checks import require_int
-
-OBS_SIZE, ACTION_SIZE = tasks.OBS_SIZE, tasks.ACTION_SIZE
+from grounding_jax._checks import (
+    FLAG,
+    POSITIVE,
+    UNIT_CLOSED,
+    UNIT_OPEN_LEFT,
+    Rule,
+    check_rules,
+    require_int,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,16 +47,30 @@ class CaclaConfig:
         critic_hidden: critic hidden units (paper: 20).
         var: use CACLA+Var (off by default, as in the paper).
         max_var_repeats: cap on the CACLA+Var repetitions of one actor update.
+        task_set: name of the :class:`tasks.TaskSet` whose observation and action the
+            networks take and give (their input and output sizes follow from it).
     """
 
     actor_hidden: int = 40
     critic_hidden: int = 20
     var: bool = False
     max_var_repeats: int = 10
+    task_set: str = tasks.PAPER.name
 
     def __post_init__(self) -> None:
         for name in ("actor_hidden", "critic_hidden", "max_var_repeats"):
             require_int(name, getattr(self, name), 1)
+        tasks.get(self.task_set)
+
+    @property
+    def obs_size(self) -> int:
+        """Input units of both networks."""
+        return tasks.get(self.task_set).obs_size
+
+    @property
+    def action_size(self) -> int:
+        """Output units of the actor."""
+        return tasks.get(self.task_set).action_size
 
 
 @struct.dataclass
@@ -75,23 +95,16 @@ class CaclaHyper:
     var_beta: Any = 0.001
 
 
+#: What each field of :class:`CaclaHyper` accepts (``validate`` and the sweep runner read it).
+HYPER_RULES: dict[str, Rule] = {
+    "actor_lr": POSITIVE, "critic_lr": POSITIVE, "sigma": POSITIVE, "gamma": UNIT_CLOSED,
+    "phase1": FLAG, "var_beta": UNIT_OPEN_LEFT,
+}
+
+
 def validate(hp: CaclaHyper) -> CaclaHyper:
     """Raise ValueError naming the field for bad concrete values; returns ``hp``."""
-    rules = {
-        "actor_lr": (lambda v: v > 0, "> 0"),
-        "critic_lr": (lambda v: v > 0, "> 0"),
-        "sigma": (lambda v: v > 0, "> 0"),
-        "gamma": (lambda v: (v >= 0) & (v <= 1), "in [0, 1]"),
-        "phase1": (lambda v: (v == 0) | (v == 1), "0 or 1"),
-        "var_beta": (lambda v: (v > 0) & (v <= 1), "in (0, 1]"),
-    }
-    for name, (ok, what) in rules.items():
-        v = getattr(hp, name)
-        if isinstance(v, jax.core.Tracer):
-            continue
-        arr = np.asarray(v, dtype=float)
-        if not np.all(np.isfinite(arr)) or not np.all(ok(arr)):
-            raise ValueError(f"{name}: must be {what}, got {v!r}")
+    check_rules(hp, HYPER_RULES)
     return hp
 
 
@@ -162,8 +175,9 @@ def init(key: jax.Array, config: CaclaConfig = CaclaConfig(), actor_units=None,
         The agent state.
     """
     ka, kc = jax.random.split(key)
-    return Agent(actor=_mlp_init(ka, OBS_SIZE, config.actor_hidden, ACTION_SIZE, actor_units),
-                 critic=_mlp_init(kc, OBS_SIZE, config.critic_hidden, 1, critic_units),
+    n_obs = config.obs_size
+    return Agent(actor=_mlp_init(ka, n_obs, config.actor_hidden, config.action_size, actor_units),
+                 critic=_mlp_init(kc, n_obs, config.critic_hidden, 1, critic_units),
                  var_delta=jnp.ones((), jnp.float32))
 
 

@@ -33,7 +33,15 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import physics, scene, tasks
-from grounding_jax._checks import require_int
+from grounding_jax._checks import (
+    FINITE,
+    NON_NEGATIVE,
+    POSITIVE,
+    Rule,
+    check_rules,
+    integer_at_least,
+    require_int,
+)
 
 OBS_SIZE, ACTION_SIZE = tasks.OBS_SIZE, tasks.ACTION_SIZE
 
@@ -46,16 +54,25 @@ class EnvConfig:
         backend: ``"mujoco"`` (C MuJoCo via ``mujoco.rollout``; CPU) or ``"mjx"`` (pure JAX).
         substeps: physics steps (5 ms each) per RL step.
         episode_length: RL steps per episode (the paper: 75).
+        task_set: name of the :class:`tasks.TaskSet` (actions, their rewards and the
+            observation's layout; default the paper's point/touch/push).
     """
 
     backend: str = "mujoco"
     substeps: int = 10
     episode_length: int = 75
+    task_set: str = tasks.PAPER.name
 
     def __post_init__(self) -> None:
         physics.check_backend(self.backend)
         for name in ("substeps", "episode_length"):
             require_int(name, getattr(self, name), 1)
+        tasks.get(self.task_set)
+
+    @property
+    def tasks(self) -> tasks.TaskSet:
+        """The :class:`tasks.TaskSet` named by ``task_set``."""
+        return tasks.get(self.task_set)
 
 
 @struct.dataclass
@@ -82,21 +99,16 @@ class EnvParams:
 
     def validate(self) -> EnvParams:
         """Check concrete values (skipped for traced ones). Returns self."""
-        checks = {
-            "action_scale": lambda v: v > 0,
-            "wrong_move_threshold": lambda v: v > 0,
-            "wrong_move_extra_steps": lambda v: v >= 0,
-            "start_noise": lambda v: v >= 0,
-        }
-        for name, ok in checks.items():
-            v = getattr(self, name)
-            if isinstance(v, jax.core.Tracer):
-                continue
-            arr = np.asarray(v)
-            if not np.all(np.isfinite(arr)) or not np.all(ok(arr)):
-                raise ValueError(f"{name}: invalid value {v!r}")
+        check_rules(self, PARAM_RULES)
         return self
 
+
+#: What each field of :class:`EnvParams` accepts (``validate`` and the sweep runner read it).
+PARAM_RULES: dict[str, Rule] = {
+    "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
+    "wrong_move_threshold": POSITIVE, "wrong_move_extra_steps": integer_at_least(0),
+    "start_noise": NON_NEGATIVE,
+}
 
 DEFAULT_PARAMS = EnvParams()
 
@@ -151,13 +163,15 @@ def layout_names() -> tuple[str, ...]:
     return tuple(scene.layout_name(i) for i in range(len(scene.LAYOUTS)))
 
 
-def make_task(action: str | int, position: str | int, layout: str | int = 0) -> Task:
+def make_task(action: str | int, position: str | int, layout: str | int = 0,
+              task_set: str = tasks.PAPER.name) -> Task:
     """A :class:`Task` from names or indices, validated.
 
     Args:
-        action: ``"point"``, ``"touch"`` or ``"push"`` (or 0..2).
+        action: ``"point"``, ``"touch"`` or ``"push"`` (or 0..2); an action of ``task_set``.
         position: ``"left"``, ``"middle"`` or ``"right"`` (or 0..2).
         layout: index 0..35 or a name from :func:`layout_names`.
+        task_set: the name of the :class:`tasks.TaskSet` the action belongs to.
 
     Returns:
         The task, as int32 scalars.
@@ -165,7 +179,7 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0) -> 
     Raises:
         ValueError: naming the field and the accepted values.
     """
-    a = _index(action, scene.ACTIONS, "action")
+    a = _index(action, tasks.get(task_set).action_names, "action")
     p = _index(position, scene.POSITIONS, "position")
     if isinstance(layout, str):
         names = layout_names()
@@ -180,9 +194,10 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0) -> 
                 layout=jnp.asarray(lay, i32))
 
 
-def _check_task(task: Task) -> None:
+def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
     """Range-check the concrete fields of a task (traced ones are checked by make_task)."""
-    for field, n in (("action", 3), ("position", 3), ("layout", len(scene.LAYOUTS))):
+    for field, n in (("action", n_actions), ("position", tasks.N_POSITIONS),
+                     ("layout", len(scene.LAYOUTS))):
         v = getattr(task, field)
         if isinstance(v, jax.core.Tracer):
             continue
@@ -218,6 +233,7 @@ class Env:
 
     def __init__(self, config: EnvConfig = EnvConfig()) -> None:
         self.config = config
+        self.tasks = config.tasks
         idx = scene.index()
         self._idx = idx
         self.arm_qpos = jnp.asarray(idx.arm_qpos)  # qpos addresses of the 4 arm joints
@@ -249,28 +265,22 @@ class Env:
         contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
         obs = jnp.concatenate([
             joints, jnp.any(contacts).astype(jnp.float32)[None],
-            jax.nn.one_hot(task.action, tasks.N_ACTIONS),
+            jax.nn.one_hot(task.action, self.tasks.n_actions),
             jax.nn.one_hot(task.position, tasks.N_POSITIONS)
         ])
         target_shape = self._slot_shape[task.layout, task.position]
-        point = -jnp.sum(jnp.abs(joints - self._pointing[task.position]))
         palm = sensordata[self._idx.sensor_palm_pos]
-        dist = jnp.linalg.norm(palm - object_start[target_shape])
         is_target = jnp.arange(3) == target_shape
-        touch_target = jnp.any(contacts & is_target)
-        touch_other = jnp.any(contacts & ~is_target)
-        touch = (-dist + jnp.where(touch_other, params.touch_other_penalty, 0.0)
-                 + jnp.where(touch_target, params.touch_target_penalty, 0.0))
-        reward = jnp.stack([point, touch, -dist])[task.action]
         moved = jnp.linalg.norm(self._objects(qpos) - object_start, axis=1)  # [shape]
         terms = {
-            "point_l1": -point,
-            "palm_target_dist": dist,
-            "touched_target": touch_target.astype(jnp.float32),
-            "touched_other": touch_other.astype(jnp.float32),
+            "point_l1": jnp.sum(jnp.abs(joints - self._pointing[task.position])),
+            "palm_target_dist": jnp.linalg.norm(palm - object_start[target_shape]),
+            "touched_target": jnp.any(contacts & is_target).astype(jnp.float32),
+            "touched_other": jnp.any(contacts & ~is_target).astype(jnp.float32),
             "target_moved": moved[target_shape],
             "wrong_moved": jnp.any((moved > params.wrong_move_threshold) & ~is_target),
         }
+        reward = self.tasks.reward(task.action, terms, params)
         return obs, reward.astype(jnp.float32), terms
 
     def _info(self, sensordata: jax.Array, ctrl: jax.Array) -> dict[str, jax.Array]:
@@ -289,7 +299,7 @@ class Env:
         Returns:
             The initial :class:`State` (reward is that of the start pose).
         """
-        _check_task(task)
+        _check_task(task, self.tasks.n_actions)
         params.validate()
         noise = jax.random.uniform(key, (4,), jnp.float32, -1.0, 1.0) * params.start_noise
         q_arm = jnp.clip(unscale_joints(self._home_scaled + noise), self._range[:, 0],
@@ -321,8 +331,9 @@ class Env:
             The next :class:`State` (same pytree structure and dtypes).
         """
         action = jnp.asarray(action)
-        if action.shape != (ACTION_SIZE,):
-            raise ValueError(f"action: expected shape ({ACTION_SIZE},), got {action.shape}")
+        n = self.tasks.action_size
+        if action.shape != (n,):
+            raise ValueError(f"action: expected shape ({n},), got {action.shape}")
         params.validate()
         action = action.astype(jnp.float32)
         nan = jnp.isnan(action)
@@ -354,9 +365,10 @@ class Env:
         The observation's action/position units switch at once; rewards from the next step on
         refer to the new task, measured from where the objects stood at reset.
         """
-        _check_task(task)
-        obs = state.obs.at[tasks.OBS_ACTION].set(jax.nn.one_hot(task.action, tasks.N_ACTIONS))
-        obs = obs.at[tasks.OBS_POSITION].set(jax.nn.one_hot(task.position, tasks.N_POSITIONS))
+        _check_task(task, self.tasks.n_actions)
+        ts = self.tasks
+        obs = state.obs.at[ts.obs_action].set(jax.nn.one_hot(task.action, ts.n_actions))
+        obs = obs.at[ts.obs_position].set(jax.nn.one_hot(task.position, tasks.N_POSITIONS))
         return state.replace(task=task, obs=obs)
 
 

@@ -18,7 +18,7 @@ from flax import struct
 from grounding_jax import tasks
 from grounding_jax._checks import require_int
 
-N_ACTIONS, N_WORDS = tasks.N_ACTIONS, tasks.N_WORDS
+N_ACTIONS, N_WORDS = tasks.N_ACTIONS, tasks.N_WORDS  # the paper's task set
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,18 +28,27 @@ class ESNConfig:
     Attributes:
         n_in: input units (paper: 40 actor hidden + 50 TL hidden = 90).
         n_res: reservoir units (paper: 50).
-        n_out: output units (paper: 3 action + 6 target words = 9).
+        n_out: output units: one per action word of the task set and one per target word
+            (paper: 3 + 6 = 9); None (the default) takes it from ``task_set``.
         spectral_radius: of the reservoir matrix (paper: 0.9).
         connectivity: share of non-zero reservoir weights, in (0, 1] (paper: 0.2).
+        task_set: name of the :class:`tasks.TaskSet` whose actions the namer names.
     """
 
     n_in: int = 90
     n_res: int = 50
-    n_out: int = tasks.SENTENCE_SIZE
+    n_out: int | None = None
     spectral_radius: float = 0.9
     connectivity: float = 0.2
+    task_set: str = tasks.PAPER.name
 
     def __post_init__(self) -> None:
+        size = tasks.get(self.task_set).sentence_size
+        if self.n_out is None:
+            object.__setattr__(self, "n_out", size)
+        elif self.n_out != size:
+            raise ValueError(f"n_out: must be {size} (the action and target words of task set "
+                             f"{self.task_set!r}) or None, got {self.n_out!r}")
         for name in ("n_in", "n_res", "n_out"):
             require_int(name, getattr(self, name), 1)
         if not np.isfinite(self.spectral_radius) or self.spectral_radius <= 0:
@@ -125,13 +134,14 @@ def apply(esn: ESN, states: jax.Array) -> jax.Array:
     return states @ esn.w_out
 
 
-def decode(outputs: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """(action index, target-word index): the top action unit and the top of the 6 word units."""
-    return (jnp.argmax(outputs[..., :N_ACTIONS], axis=-1),
-            jnp.argmax(outputs[..., N_ACTIONS:], axis=-1))
+def decode(outputs: jax.Array, n_actions: int = N_ACTIONS) -> tuple[jax.Array, jax.Array]:
+    """(action index, target-word index): the top of the first ``n_actions`` units (the
+    action words) and the top of the 6 word units after them."""
+    return (jnp.argmax(outputs[..., :n_actions], axis=-1),
+            jnp.argmax(outputs[..., n_actions:], axis=-1))
 
 
-def targets(action: jax.Array, word: jax.Array) -> jax.Array:
-    """One-hot sentence targets ``[..., 9]``: the action word and the target word."""
-    return jnp.concatenate([jax.nn.one_hot(action, N_ACTIONS), jax.nn.one_hot(word, N_WORDS)],
+def targets(action: jax.Array, word: jax.Array, n_actions: int = N_ACTIONS) -> jax.Array:
+    """One-hot sentence targets ``[..., n_actions + 6]``: the action word and the target word."""
+    return jnp.concatenate([jax.nn.one_hot(action, n_actions), jax.nn.one_hot(word, N_WORDS)],
                            axis=-1)

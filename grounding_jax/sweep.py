@@ -54,12 +54,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, al_experiments, cacla, physics, tl, tl_data
+from grounding_jax import al, al_experiments, cacla, env, physics, tl, tl_data
+from grounding_jax._checks import Rule
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.checkpoint import Checkpointer, CheckpointError
 from grounding_jax.env import EnvConfig, EnvParams
 
-MODULES = ("al", "tl")
 EXECUTORS = ("local", "ray")
 
 
@@ -90,7 +90,27 @@ def _int_at_least(n: int) -> tuple[str, Callable[[Any], bool]]:
 _CH, _DH, _EC = cacla.CaclaHyper(), al.ALHyper(), EnvConfig()
 _EP, _TH, _TC = EnvParams(), tl.TLHyper(), tl.TLConfig()
 
-FIELDS: dict[str, dict[str, Field]] = {
+def _traced(rule: Rule, default: Any) -> Field:
+    """A traced field checked by its dataclass's own rule (one table serves both)."""
+    return Field("traced", rule.type, default, rule.text, rule.holds)
+
+
+def _traced_from(rules: dict[str, Rule], defaults: Any, names: Sequence[str] | None = None
+                 ) -> dict[str, Field]:
+    return {n: _traced(rules[n], getattr(defaults, n)) for n in (names or rules)}
+
+
+#: the traced AL fields a sweep may set, by the dataclass they belong to (the hidden sizes
+#: are the sweep's own: they become ``actor_units``/``critic_units``)
+_AL_SWEPT = {
+    "cacla": ("actor_lr", "critic_lr", "sigma", "gamma", "var_beta"),  # CaclaHyper
+    "al": ("actor_lr_decay", "critic_lr_decay", "sigma_decay", "actor_init_scale",
+           "executed_target"),  # ALHyper
+    "env": ("action_scale", "touch_other_penalty", "touch_target_penalty",
+            "start_noise"),  # EnvParams
+}
+
+_FIELDS: dict[str, dict[str, Field]] = {
     "al": {
         # traced: the networks are built at the sweep's largest sizes with the unused units at
         # zero weights, where they stay (cacla.init) -- one batch instead of one per size, which
@@ -104,20 +124,9 @@ FIELDS: dict[str, dict[str, Field]] = {
         "substeps": Field("static", int, _EC.substeps, *_int_at_least(1)),
         "episode_length": Field("static", int, _EC.episode_length, *_int_at_least(1)),
         "random_layout": Field("static", bool, True),
-        "actor_lr": Field("traced", float, _CH.actor_lr, "> 0", _pos),
-        "critic_lr": Field("traced", float, _CH.critic_lr, "> 0", _pos),
-        "sigma": Field("traced", float, _CH.sigma, "> 0", _pos),
-        "gamma": Field("traced", float, _CH.gamma, "in [0, 1]", lambda v: 0 <= v <= 1),
-        "var_beta": Field("traced", float, _CH.var_beta, "in (0, 1]", lambda v: 0 < v <= 1),
-        "actor_lr_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
-        "critic_lr_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
-        "sigma_decay": Field("traced", float, 1.0, "in (0, 1]", lambda v: 0 < v <= 1),
-        "actor_init_scale": Field("traced", float, 1.0, "> 0", _pos),
-        "executed_target": Field("traced", int, 0, "0 or 1", lambda v: v in (0, 1)),
-        "action_scale": Field("traced", float, _EP.action_scale, "> 0", _pos),
-        "touch_other_penalty": Field("traced", float, _EP.touch_other_penalty),
-        "touch_target_penalty": Field("traced", float, _EP.touch_target_penalty),
-        "start_noise": Field("traced", float, _EP.start_noise, ">= 0", lambda v: v >= 0),
+        **_traced_from(cacla.HYPER_RULES, _CH, _AL_SWEPT["cacla"]),
+        **_traced_from(al.HYPER_RULES, _DH, _AL_SWEPT["al"]),
+        **_traced_from(env.PARAM_RULES, _EP, _AL_SWEPT["env"]),
     },
     "tl": {
         # the hidden size could be traced (padded + masked), but one compile per size was
@@ -126,17 +135,14 @@ FIELDS: dict[str, dict[str, Field]] = {
         "epochs": Field("static", int, _TC.epochs, *_int_at_least(1)),
         "eval_every": Field("static", int, _TC.eval_every, *_int_at_least(1)),
         "noise_mode": Field("static", str, _TC.noise_mode, choices=tl.NOISE_MODES),
-        "lr": Field("traced", float, _TH.lr, "> 0", _pos),
-        "replication": Field("traced", int, _TH.replication, *_int_at_least(1)),
-        "noise": Field("traced", float, _TH.noise, "in [0, 1]", lambda v: 0 <= v <= 1),
-        "image_scale": Field("traced", float, _TH.image_scale, "> 0", _pos),
-        "target_scale": Field("traced", float, _TH.target_scale, "> 0", _pos),
+        **_traced_from(tl.HYPER_RULES, _TH,
+                       ("lr", "replication", "noise", "image_scale", "target_scale")),
     },
 }
 
 #: the per-run metrics a figure may plot: AL -- per-episode training metrics (the summary is
 #: the mean over the last tenth of the episodes); TL -- the final value after training
-METRICS = {
+_METRICS = {
     "al": {"td_error": "critic's RMS TD error per episode",
            "final_reward": "reward at the episode's last step",
            "return": "sum of rewards over the episode",
@@ -185,10 +191,10 @@ class SweepSpec:
     def evaluations(self) -> tuple[int, ...]:
         """Episode counts at which AL success rates are measured: ``eval_at`` plus the end,
         or none when neither ``eval_at`` nor a ``success_*`` metric asks for them."""
-        if self.module != "al" or not (self.eval_at or self.metric.startswith("success_")):
+        adapter = ADAPTERS[self.module]
+        if not adapter.evaluates or not (self.eval_at or self.metric.startswith("success_")):
             return ()
-        p = self.points()[0]
-        return tuple(sorted(set(self.eval_at) | {p["phase1_episodes"] + p["phase2_episodes"]}))
+        return tuple(sorted(set(self.eval_at) | {adapter.length(self.points()[0])}))
 
     def points(self) -> list[dict[str, Any]]:
         """The grid's points, as full assignments of the module's fields: every combination
@@ -255,8 +261,10 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
                                                                isinstance(data[k], bool))):
             raise _err(source, k, f"expected {t.__name__}, got {data[k]!r}")
     module = data.get("module")
-    if module not in MODULES:
-        raise _err(source, "module", f"unknown module {module!r}; accepted values: {MODULES}")
+    if module not in ADAPTERS:
+        raise _err(source, "module", f"unknown module {module!r}; accepted values: "
+                                     f"{tuple(ADAPTERS)}")
+    adapter = ADAPTERS[module]
     fields = FIELDS[module]
     params, grid = dict(data.get("params", {})), dict(data.get("grid", {}))
     if not grid:
@@ -293,7 +301,7 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
     if design not in DESIGNS:
         raise _err(source, "design", f"unknown value {design!r}; accepted values: {DESIGNS}")
     eval_at = data.get("eval_at", [])
-    if eval_at and module != "al":
+    if eval_at and not adapter.evaluates:
         raise _err(source, "eval_at", "only AL sweeps evaluate success rates")
     if not all(isinstance(e, int) and not isinstance(e, bool) and e >= 1 for e in eval_at):
         raise _err(source, "eval_at", f"must be a list of episode counts >= 1, got {eval_at!r}")
@@ -304,8 +312,8 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
                      source=source, description=data.get("description", ""),
                      paper=data.get("paper", ""), eval_at=tuple(sorted(set(eval_at))),
                      design=design)
-    if module == "al" and (eval_at or metric.startswith("success_")):
-        lengths = {p["phase1_episodes"] + p["phase2_episodes"] for p in spec.points()}
+    if adapter.evaluates and (eval_at or metric.startswith("success_")):
+        lengths = {adapter.length(p) for p in spec.points()}
         if len(lengths) > 1:
             raise _err(source, "grid", "success evaluation needs one episode count for all "
                                        f"points; phase1/phase2_episodes give {sorted(lengths)}")
@@ -363,16 +371,21 @@ def load_spec(path: str | pathlib.Path, overrides: Sequence[str] = ()) -> SweepS
 
 # ----------------------------------------------------------------------------- running groups
 def _module_config(spec: SweepSpec, static: dict[str, Any]):
-    pts = spec.points()
-    if spec.module == "al":
-        return al.ALConfig(
-            env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
-                          episode_length=static["episode_length"]),
-            cacla=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
-                                    critic_hidden=max(p["critic_hidden"] for p in pts),
-                                    var=static["var"]),
-            phase1_episodes=static["phase1_episodes"],
-            phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"])
+    return ADAPTERS[spec.module].config(spec.points(), static)
+
+
+def _al_config(pts: list[dict], static: dict[str, Any]) -> al.ALConfig:
+    return al.ALConfig(
+        env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
+                      episode_length=static["episode_length"]),
+        cacla=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
+                                critic_hidden=max(p["critic_hidden"] for p in pts),
+                                var=static["var"]),
+        phase1_episodes=static["phase1_episodes"],
+        phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"])
+
+
+def _tl_config(pts: list[dict], static: dict[str, Any]) -> tl.TLConfig:
     clean = all(p["noise"] == 0 for p in pts)
     return tl.TLConfig(epochs=static["epochs"], eval_every=static["eval_every"],
                        noise_mode=static["noise_mode"], max_hidden=static["hidden"],
@@ -386,20 +399,17 @@ def _column(rows: list[dict], k: str, dtype) -> jnp.ndarray:
 
 def _hyper(spec: SweepSpec, rows: list[dict]):
     """The traced fields of a batch of rows as arrays with a leading batch axis."""
+    return ADAPTERS[spec.module].hyper(rows)
+
+
+def _al_hyper(rows: list[dict]) -> al.ALHyper:
     f32 = jnp.float32
-    if spec.module == "tl":
-        return tl.stack_hyper(rows)
-    ch = cacla.CaclaHyper(**{k: _column(rows, k, f32) for k in
-                             ("actor_lr", "critic_lr", "sigma", "gamma", "var_beta")})
-    env = EnvParams(**{k: _column(rows, k, f32) for k in
-                       ("action_scale", "touch_other_penalty", "touch_target_penalty",
-                        "start_noise")})
-    return al.ALHyper(cacla=ch, env=env,
+    ch = cacla.CaclaHyper(**{k: _column(rows, k, f32) for k in _AL_SWEPT["cacla"]})
+    env_params = EnvParams(**{k: _column(rows, k, f32) for k in _AL_SWEPT["env"]})
+    return al.ALHyper(cacla=ch, env=env_params,
                       actor_units=_column(rows, "actor_hidden", jnp.int32),
                       critic_units=_column(rows, "critic_hidden", jnp.int32),
-                      **{k: _column(rows, k, f32) for k in
-                         ("actor_lr_decay", "critic_lr_decay", "sigma_decay",
-                          "actor_init_scale", "executed_target")})
+                      **{k: _column(rows, k, f32) for k in _AL_SWEPT["al"]})
 
 
 def _batch_sharding(batch: int):
@@ -467,11 +477,7 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
     if progress is not None:  # count the real runs, not the padding rows
         def report(units: int) -> None:
             progress(units * len(rows) // (len(rows) + pad))
-    if spec.module == "al":
-        metrics, params = _run_al(cfg, keys, hp, spec.chunk, sharding, ck, report,
-                                  spec.evaluations())
-    else:
-        metrics, params = _run_tl(cfg, keys, hp, sharding, ck, report)
+    metrics, params = ADAPTERS[spec.module].train(cfg, keys, hp, spec, sharding, ck, report)
     metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
     finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
                            len(rows)) & _finite_rows(metrics, len(rows)))
@@ -569,12 +575,12 @@ def chunk_stops(episodes: int, chunk: int) -> list[int]:
     return list(range(size, episodes, size)) + [episodes]
 
 
-def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress,
-            evaluations: tuple[int, ...] = ()):
-    """Train a group in chunks; at each of ``evaluations`` (episode counts) the success rates
-    of every run are measured (the evaluation hook) and returned as metrics
-    ``success_<name>`` ``[runs, len(evaluations)]``."""
-    stops = sorted(set(chunk_stops(cfg.episodes, chunk)) | set(evaluations))
+def _run_al(cfg: al.ALConfig, keys, hp, spec: SweepSpec, sharding, ck, progress):
+    """Train a group in chunks of ``spec.chunk`` episodes; at each of ``spec.evaluations()``
+    (episode counts) the success rates of every run are measured (the evaluation hook) and
+    returned as metrics ``success_<name>`` ``[runs, len(evaluations)]``."""
+    evaluations = spec.evaluations()
+    stops = sorted(set(chunk_stops(cfg.episodes, spec.chunk)) | set(evaluations))
     start = None
     n = keys.shape[0]
     names = al_experiments.SUCCESS_METRICS
@@ -611,7 +617,7 @@ def _run_al(cfg: al.ALConfig, keys, hp, chunk: int, sharding, ck, progress,
     return metrics, agents
 
 
-def _run_tl(cfg: tl.TLConfig, keys, hp, sharding, ck, progress):
+def _run_tl(cfg: tl.TLConfig, keys, hp, spec: SweepSpec, sharding, ck, progress):
     n = keys.shape[0]
     train = jax.jit(jax.vmap(tl.make_train(cfg)))
     if ck is not None and ck.latest_step() is not None:
@@ -627,6 +633,48 @@ def _run_tl(cfg: tl.TLConfig, keys, hp, sharding, ck, progress):
     return metrics, params
 
 
+@dataclasses.dataclass(frozen=True)
+class Adapter:
+    """What the sweep runner needs from one module; the runner itself does not branch on
+    modules.
+
+    Attributes:
+        fields: the sweepable fields (static ones group the grid, traced ones are vmapped).
+        metrics: the per-run metrics a figure may plot, with their descriptions.
+        unit: what a run's length counts ("episodes", "epochs").
+        length: a point's run length in ``unit``.
+        config: ``config(points, static) -> static config`` of one group.
+        hyper: ``hyper(rows) -> traced hyperparameters`` with a leading batch axis.
+        train: ``train(config, keys, hp, spec, sharding, checkpointer, progress) -> (metrics,
+            params)`` for one group.
+        curves: metrics are per-episode curves (summarised over the last tenth), else one
+            final value per run.
+        evaluates: runs can measure success rates at ``eval_at``.
+    """
+
+    fields: dict[str, Field]
+    metrics: dict[str, str]
+    unit: str
+    length: Callable[[dict], int]
+    config: Callable[[list[dict], dict], Any]
+    hyper: Callable[[list[dict]], Any]
+    train: Callable[..., tuple]
+    curves: bool = False
+    evaluates: bool = False
+
+
+ADAPTERS: dict[str, Adapter] = {
+    "al": Adapter(_FIELDS["al"], _METRICS["al"], "episodes",
+                  lambda p: p["phase1_episodes"] + p["phase2_episodes"], _al_config, _al_hyper,
+                  _run_al, curves=True, evaluates=True),
+    "tl": Adapter(_FIELDS["tl"], _METRICS["tl"], "epochs", lambda p: p["epochs"], _tl_config,
+                  tl.stack_hyper, _run_tl),
+}
+MODULES = tuple(ADAPTERS)
+FIELDS = {name: a.fields for name, a in ADAPTERS.items()}
+METRICS = {name: a.metrics for name, a in ADAPTERS.items()}
+
+
 # ---------------------------------------------------------------------------------- the sweep
 def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarray) -> dict:
     """Per run value of the plotted metric, per point mean/std over the finite runs, and the
@@ -635,7 +683,7 @@ def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarr
     if spec.metric.startswith("success_"):  # [runs, evaluations]: the last one counts
         curve, window = metrics[spec.metric], None
         value = curve[:, -1]
-    elif spec.module == "al":
+    elif ADAPTERS[spec.module].curves:
         curve = metrics[spec.metric]  # [runs, episodes]
         window = max(1, curve.shape[1] // 10)
         value = curve[:, -window:].mean(1)
@@ -754,10 +802,9 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
                title=f"{label}, {window}\n(mean ± std over {spec.seeds} seeds)")
     if others:
         ax.legend(fontsize=7)
-    lengths = sorted({p["phase1_episodes"] + p["phase2_episodes"] if spec.module == "al"
-                      else p["epochs"] for p in spec.points()})
-    unit = "episodes" if spec.module == "al" else "epochs"
-    fig.suptitle(f"{spec.title} ({'/'.join(map(str, lengths))} {unit})")
+    adapter = ADAPTERS[spec.module]
+    lengths = sorted({adapter.length(p) for p in spec.points()})
+    fig.suptitle(f"{spec.title} ({'/'.join(map(str, lengths))} {adapter.unit})")
     fig.tight_layout()
     write_figure(out, spec.figure, {k: v for k, v in summary.items() if k != "curves"}, fig)
 
@@ -798,15 +845,13 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
     n_pts = len(spec.points())
     run_keys = _run_keys(spec, key)  # the one split
     groups = spec.groups()
-    per_run = (lambda s: s["phase1_episodes"] + s["phase2_episodes"]) if spec.module == "al" \
-        else (lambda s: s["epochs"])
+    per_run = ADAPTERS[spec.module].length  # a group's static values hold the run length
     total = sum(len(idx) * spec.seeds * per_run(s) for s, idx in groups)
     t0 = time.perf_counter()
     from tqdm.auto import tqdm
 
-    unit = "ep" if spec.module == "al" else "epoch"
-    with tqdm(total=total, unit=unit, desc=spec.name, disable=not show_progress,
-              dynamic_ncols=True, smoothing=0.1) as bar:
+    with tqdm(total=total, unit=ADAPTERS[spec.module].unit.rstrip("s"), desc=spec.name,
+              disable=not show_progress, dynamic_ncols=True, smoothing=0.1) as bar:
         if executor == "ray":
             results = _run_ray(spec, groups, run_keys, folder, resume, ray_address, bar, per_run)
         else:

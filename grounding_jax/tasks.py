@@ -1,32 +1,187 @@
-"""The task vocabulary, in one place: actions, positions, target words, and the layout of the
-actor's observation and action. The env, the learner's network sizes, the ESN's output size
-and the AN take their sizes from here.
+"""The task vocabulary, in one place: actions (with each one's reward and success rule),
+positions, target words, and the layout of the actor's observation and action. The env, the
+learner's network sizes, the ESN's output size and the AN take their sizes from here.
 
-Observation (``OBS_SIZE`` = 11): the 4 arm joints (scaled to [-1, 1]), the touch bit, the
-action one-hot, the position one-hot. Action (``ACTION_SIZE`` = 4): the change of the 4 scaled
-joints.
+A :class:`TaskSet` is a tuple of :class:`Action` s. The paper's (``"paper"``: point, touch,
+push) is the default everywhere; another one is registered with :func:`register` and chosen
+by name (``EnvConfig(task_set=...)``, ``CaclaConfig(task_set=...)``,
+``ESNConfig(task_set=...)``), so configs stay plain JSON.
+
+Observation (``obs_size``; 11 for the paper): the 4 arm joints (scaled to [-1, 1]), the touch
+bit, the action one-hot, the position one-hot. Action (``action_size`` = 4): the change of the
+4 scaled joints.
+
+Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
+joints to the position's stored pointing pose; ``palm_target_dist``: metres from the palm to
+the target's start; ``touched_target`` / ``touched_other``: 0/1) and the env's traced params.
+Success rules judge one greedy episode from the quantities ``al_experiments.episode_success``
+measures (``final_point_l1``, ``point_l1_range``, ``touched_late``, ``target_moved``; an
+episode that moved a wrong object fails whatever the rule says).
 """
 
 from __future__ import annotations
 
-ACTIONS = ("point", "touch", "push")
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
 POSITIONS = ("left", "middle", "right")
 SHAPES = ("box", "cylinder", "sphere")
 COLOURS = ("red", "green", "blue")
 #: the words that name a target: a shape or a colour
 TARGET_WORDS = (*SHAPES, *COLOURS)
-
 N_JOINTS = 4
-N_ACTIONS = len(ACTIONS)
 N_POSITIONS = len(POSITIONS)
 N_WORDS = len(TARGET_WORDS)
 
-#: where each part of the observation lies
+# The success criteria (judging only; the paper's rewards train).
+POINT_L1 = 0.1  # final L1 to the stored pose (scaled joint units)
+POINT_STILL = 0.02  # L1 range over the last STILL_LAST steps: at rest
+STILL_LAST = 10
+POINT_MOVED = 0.01  # metres the target may move while pointed at
+TOUCH_MOVED = 0.03  # ... while touched
+PUSH_MOVED = 0.02  # metres a push must move it
+
+Terms = Mapping[str, jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class Action:
+    """One action word with its reward and its success rule.
+
+    Attributes:
+        name: the word (the command and the AN's output).
+        reward: ``reward(terms, params) -> scalar``, per step (see the module doc for terms).
+        success: ``success(quantities) -> bool``, judging a whole greedy episode.
+    """
+
+    name: str
+    reward: Callable[[Terms, Any], jax.Array]
+    success: Callable[[Terms], jax.Array]
+
+
+def _point_reward(t: Terms, params: Any) -> jax.Array:
+    return -t["point_l1"]
+
+
+def _touch_reward(t: Terms, params: Any) -> jax.Array:
+    return (-t["palm_target_dist"]
+            + jnp.where(t["touched_other"] > 0, params.touch_other_penalty, 0.0)
+            + jnp.where(t["touched_target"] > 0, params.touch_target_penalty, 0.0))
+
+
+def _push_reward(t: Terms, params: Any) -> jax.Array:
+    return -t["palm_target_dist"]
+
+
+def _point_success(q: Terms) -> jax.Array:
+    return ((q["final_point_l1"] < POINT_L1) & (q["point_l1_range"] < POINT_STILL)
+            & (q["target_moved"] < POINT_MOVED))
+
+
+def _touch_success(q: Terms) -> jax.Array:
+    return (q["touched_late"] > 0) & (q["target_moved"] < TOUCH_MOVED)
+
+
+def _push_success(q: Terms) -> jax.Array:
+    return q["target_moved"] >= PUSH_MOVED
+
+
+POINT = Action("point", _point_reward, _point_success)
+TOUCH = Action("touch", _touch_reward, _touch_success)
+PUSH = Action("push", _push_reward, _push_success)
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskSet:
+    """The actions a robot learns, and the sizes and slices that follow from them.
+
+    Attributes:
+        name: the key it is registered under.
+        actions: the actions, in the order of the observation's and the AN's action units.
+    """
+
+    name: str
+    actions: tuple[Action, ...]
+
+    def __post_init__(self) -> None:
+        names = self.action_names
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"actions: need at least one action and unique names, got {names}")
+
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.actions)
+
+    @property
+    def n_actions(self) -> int:
+        return len(self.actions)
+
+    @property
+    def obs_action(self) -> slice:
+        """Where the action one-hot lies in the observation."""
+        return slice(N_JOINTS + 1, N_JOINTS + 1 + self.n_actions)
+
+    @property
+    def obs_position(self) -> slice:
+        """Where the position one-hot lies in the observation."""
+        return slice(self.obs_action.stop, self.obs_action.stop + N_POSITIONS)
+
+    @property
+    def obs_size(self) -> int:
+        return self.obs_position.stop
+
+    @property
+    def action_size(self) -> int:
+        return N_JOINTS
+
+    @property
+    def sentence_size(self) -> int:
+        """The AN's outputs: one unit per action word, then one per target word."""
+        return self.n_actions + N_WORDS
+
+    def reward(self, action: jax.Array, terms: Terms, params: Any) -> jax.Array:
+        """The reward of action index ``action`` (may be traced) for one step's terms."""
+        return jnp.stack([a.reward(terms, params) for a in self.actions])[action]
+
+    def success(self, action: jax.Array, quantities: Terms) -> jax.Array:
+        """The success rule of action index ``action`` (may be traced) on an episode's
+        judged quantities (a wrong object moved is checked by the caller)."""
+        return jnp.stack([a.success(quantities) for a in self.actions])[action]
+
+
+PAPER = TaskSet("paper", (POINT, TOUCH, PUSH))
+TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER}
+
+
+def register(task_set: TaskSet) -> TaskSet:
+    """Make ``task_set`` available by its name to the configs (replacing one of that name,
+    except the paper's, which stays as it is). Returns it."""
+    if task_set.name == PAPER.name and task_set is not PAPER:
+        raise ValueError(f"task_set: the name {PAPER.name!r} is the paper's and cannot be "
+                         f"replaced; choose another name")
+    TASK_SETS[task_set.name] = task_set
+    return task_set
+
+
+def get(name: str) -> TaskSet:
+    """The task set registered as ``name``; ValueError naming the accepted values."""
+    if name not in TASK_SETS:
+        raise ValueError(f"task_set: unknown value {name!r}; accepted values: "
+                         f"{tuple(TASK_SETS)} (add one with tasks.register)")
+    return TASK_SETS[name]
+
+
+# The paper's task set, as module constants (what most code and users need).
+ACTIONS = PAPER.action_names
+N_ACTIONS = PAPER.n_actions
 OBS_JOINTS = slice(0, N_JOINTS)
 OBS_TOUCH = N_JOINTS
-OBS_ACTION = slice(N_JOINTS + 1, N_JOINTS + 1 + N_ACTIONS)
-OBS_POSITION = slice(OBS_ACTION.stop, OBS_ACTION.stop + N_POSITIONS)
-OBS_SIZE = OBS_POSITION.stop
-ACTION_SIZE = N_JOINTS
-#: the AN's outputs: one unit per action word, then one per target word
-SENTENCE_SIZE = N_ACTIONS + N_WORDS
+OBS_ACTION = PAPER.obs_action
+OBS_POSITION = PAPER.obs_position
+OBS_SIZE = PAPER.obs_size
+ACTION_SIZE = PAPER.action_size
+SENTENCE_SIZE = PAPER.sentence_size

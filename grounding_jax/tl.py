@@ -24,7 +24,14 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import tl_data
-from grounding_jax._checks import require_int
+from grounding_jax._checks import (
+    POSITIVE,
+    UNIT_CLOSED,
+    Rule,
+    check_rules,
+    integer_at_least,
+    require_int,
+)
 
 N_OUT = 3
 N_SYMBOLS = 15
@@ -97,9 +104,6 @@ class TLHyper:
 #: The shipped input balance and learning rate, chosen on tuning keys disjoint from the
 #: reported ones (README, "Target localizer"); the defaults of :class:`TLHyper` are the paper's.
 TUNED = {"lr": 0.15, "image_scale": 0.6, "target_scale": 8.0}
-#: The fields of :class:`TLHyper` and whether each is a float (else an int).
-HYPER_FIELDS = {"lr": True, "hidden": False, "replication": False, "noise": True,
-                "image_scale": True, "target_scale": True}
 
 
 def stack_hyper(rows: list[dict]) -> TLHyper:
@@ -120,27 +124,24 @@ def symbol_scale(hp: TLHyper) -> jax.Array:
                             jnp.full((n_target,), hp.target_scale, jnp.float32)])
 
 
+#: What each field of :class:`TLHyper` accepts (``validate`` and the sweep runner read it).
+HYPER_RULES: dict[str, Rule] = {
+    "lr": POSITIVE, "hidden": integer_at_least(1), "replication": integer_at_least(1),
+    "noise": UNIT_CLOSED, "image_scale": POSITIVE, "target_scale": POSITIVE,
+}
+#: The fields of :class:`TLHyper` and whether each is a float (else an int).
+HYPER_FIELDS = {name: rule.type is float for name, rule in HYPER_RULES.items()}
+
+
 def validate(hp: TLHyper, config: TLConfig) -> None:
     """Raise ValueError naming the field for bad concrete values (before any compile)."""
-    lr, hid, rep, noise = (np.asarray(getattr(hp, f)) for f in
-                           ("lr", "hidden", "replication", "noise"))
-    if not np.all(np.isfinite(lr)) or np.any(lr <= 0):
-        raise ValueError(f"lr: must be > 0, got {lr}")
-    if np.any(hid < 1) or np.any(hid != np.round(hid)):
-        raise ValueError(f"hidden: must be an integer >= 1, got {hid}")
+    check_rules(hp, HYPER_RULES)
+    hid, rep, noise = (np.asarray(getattr(hp, f)) for f in ("hidden", "replication", "noise"))
     if np.any(hid > config.max_hidden):
         raise ValueError(f"hidden: {hid.max()} exceeds max_hidden={config.max_hidden}")
-    if np.any(rep < 1) or np.any(rep != np.round(rep)):
-        raise ValueError(f"replication (n): must be an integer >= 1, got {rep}")
     if np.any(rep > config.max_replication):
         raise ValueError(f"replication (n): {rep.max()} exceeds max_replication="
                          f"{config.max_replication}")
-    if np.any(noise < 0) or np.any(noise > 1):
-        raise ValueError(f"noise: must be in [0, 1], got {noise}")
-    for name in ("image_scale", "target_scale"):
-        v = np.asarray(getattr(hp, name), np.float64)
-        if not np.all(np.isfinite(v)) or np.any(v <= 0):
-            raise ValueError(f"{name}: must be a finite number > 0, got {v}")
     if config.pixel_budget and np.any(noise > 0):
         raise ValueError("noise: must be 0 with pixel_budget > 0 (sparse rows assume clean "
                          "bitmaps); use pixel_budget=0 for the noise test")

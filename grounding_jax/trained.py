@@ -26,7 +26,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from grounding_jax import al, cacla, esn, scene, tl, tl_data
+from grounding_jax import al, cacla, esn, scene, tasks, tl, tl_data
 from grounding_jax.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, make_task
 
@@ -94,6 +94,7 @@ class TrainedAN:
     """The action namer: an ESN over [actor hidden, TL hidden] sequences."""
 
     net: esn.ESN
+    config: esn.ESNConfig = esn.ESNConfig()
 
     def outputs(self, actor_hidden: jax.Array, tl_hidden: jax.Array) -> jax.Array:
         """The 9 outputs at each step for a sequence ``[T, actor hidden]`` and the TL's
@@ -104,7 +105,7 @@ class TrainedAN:
 
     def name(self, actor_hidden: jax.Array, tl_hidden: jax.Array) -> tuple[str, str]:
         """(action word, target word) at the sequence's last step."""
-        return _words(self.outputs(actor_hidden, tl_hidden)[-1])
+        return _words(self.outputs(actor_hidden, tl_hidden)[-1], self.config)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,7 +149,7 @@ class Robot:
             raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
         bitmap, symbols = _configuration(layout, word)  # read once: localize and name use it
         position = int(self.tl.position(bitmap, symbols))
-        task = make_task(action, position, layout)
+        task = make_task(action, position, layout, self.env_config.task_set)
         key = jax.random.key(0) if key is None else key
         traj, named = self._performer(steps)(self.al.agent, self.tl.params, self.an.net, key,
                                              task, params, bitmap, symbols)
@@ -156,13 +157,14 @@ class Robot:
                 "true_position": scene.POSITIONS[tl_data.label_of(layout,
                                                                   tl_data.word_index(word))],
                 "final_reward": float(traj.reward[-1]), "trajectory": traj,
-                "named": _words(named)}
+                "named": _words(named, self.an.config)}
 
 
-def _words(outputs: jax.Array) -> tuple[str, str]:
-    """(action word, target word) of the AN's 9 outputs at one step."""
-    a, w = esn.decode(outputs)
-    return scene.ACTIONS[int(a)], tl_data.TARGET_WORDS[int(w)]
+def _words(outputs: jax.Array, config: esn.ESNConfig) -> tuple[str, str]:
+    """(action word, target word) of the AN's outputs at one step."""
+    names = tasks.get(config.task_set).action_names
+    a, w = esn.decode(outputs, len(names))
+    return names[int(a)], tl_data.TARGET_WORDS[int(w)]
 
 
 def _configuration(layout: int, word: str) -> tuple[jax.Array, jax.Array]:
@@ -252,7 +254,7 @@ def load(directory: str | pathlib.Path) -> Robot:
         raise CheckpointError(f"{directory}: holds a {stored['kind']!r} checkpoint, not "
                               f"trained modules ({KIND!r})")
     config = stored["config"]
-    tl_cfg, tl_hp, al_cfg, _, env_cfg = _configs(config)
+    tl_cfg, tl_hp, al_cfg, esn_cfg, env_cfg = _configs(config)
     ck = Checkpointer(directory, KIND, config)
     step = ck.latest_step()
     if step is None:
@@ -260,5 +262,5 @@ def load(directory: str | pathlib.Path) -> Robot:
     tree = ck.restore(step, _like(config))
     ck.close()
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
-                 al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"]),
+                 al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
                  env_config=env_cfg, config=config)

@@ -63,6 +63,57 @@ def test_the_task_vocabulary_sets_the_observation_layout_and_the_sizes(env_c):
                                                                           st.obs).shape == ()
     assert esn.ESNConfig().n_out == tasks.N_ACTIONS + len(tasks.TARGET_WORDS)
 
+
+def test_a_fourth_action_is_one_task_set_and_every_size_follows():
+    """A dummy fourth action ("hover": stay 10 cm from the target) defined only in a task
+    set: env, learner, ESN, the trainer's task draw and the success rule all follow."""
+    from grounding_jax import al, al_experiments, cacla, esn, tasks
+
+    hover = tasks.Action(
+        "hover", reward=lambda t, p: -jnp.abs(t["palm_target_dist"] - 0.1),
+        success=lambda q: q["target_moved"] < 0.005)
+    four = tasks.register(tasks.TaskSet("test_four", (*tasks.PAPER.actions, hover)))
+    assert (four.n_actions, four.obs_size, four.sentence_size) == (4, 12, 10)
+
+    env = gj.make_env("mujoco", task_set="test_four")
+    task = gj.make_task("hover", "middle", 3, task_set="test_four")
+    st = env.reset(jax.random.key(0), task)
+    assert st.obs.shape == (12,)
+    np.testing.assert_array_equal(st.obs[four.obs_action], np.eye(4)[3])
+    np.testing.assert_array_equal(st.obs[four.obs_position], np.eye(3)[1])
+    nxt = env.step(st, jnp.zeros(4))
+    dist = float(nxt.metrics["palm_target_dist"])
+    assert float(nxt.reward) == pytest.approx(-abs(dist - 0.1), abs=1e-6)
+    # the paper's three keep their rewards under the larger set
+    push = env.step(env.reset(jax.random.key(0), gj.make_task("push", "middle", 3)), jnp.zeros(4))
+    assert float(push.reward) == pytest.approx(-dist, abs=1e-6)
+    with pytest.raises(ValueError, match="action: unknown value 'hover'.*'push'"):
+        gj.make_task("hover", "middle")  # not in the paper's set
+
+    c = cacla.CaclaConfig(task_set="test_four")
+    agent = cacla.init(jax.random.key(0), c)
+    hidden, action = cacla.actor_apply(agent.actor, st.obs)
+    assert agent.actor.w1.shape[0] == 12 and action.shape == (4,)
+    assert cacla.critic_apply(agent.critic, st.obs).shape == ()
+    cfg = al.ALConfig(env=env.config, cacla=c)
+    assert cfg.actions == (0, 1, 2, 3)
+    with pytest.raises(ValueError, match="cacla.task_set"):
+        al.ALConfig(env=env.config)  # a paper-sized learner in a four-action env
+
+    e = esn.ESNConfig(task_set="test_four")
+    assert e.n_out == 10 and esn.init(jax.random.key(0), e).w_out.shape[1] == 10
+    d = esn.targets(jnp.asarray([3]), jnp.asarray([5]), four.n_actions)
+    assert [int(i[0]) for i in esn.decode(d, four.n_actions)] == [3, 5]
+    with pytest.raises(ValueError, match="n_out"):
+        esn.ESNConfig(task_set="test_four", n_out=9)
+
+    traj = jax.tree.map(lambda x: x[None], nxt)
+    ok = al_experiments.episode_success(traj, task, task_set=four)
+    assert float(ok["success"]) == float(float(nxt.metrics["target_moved"]) < 0.005) == 1.0
+    with pytest.raises(ValueError, match="task_set: unknown value 'nope'"):
+        gj.make_env("mujoco", task_set="nope")
+
+
 def _expected_reward(state, action: int, position: int, layout: int) -> float:
     """The paper's three rewards, computed here from the raw state with NumPy."""
     idx = scene.index()

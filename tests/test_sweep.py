@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -201,6 +202,35 @@ def test_bad_sweep_files_name_the_key_and_file_before_compiling(tmp_path, text, 
     # the command line says the same and exits 2 without writing anything
     assert sweep.main([str(path), "--out", str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
+
+
+def test_sweep_fields_and_validate_read_one_rule_table():
+    """Each traced field the sweep takes from a dataclass is checked by that dataclass's own
+    rule: the same words in both errors, from one table."""
+    from grounding_jax import cacla, env
+
+    owners = [(cacla.HYPER_RULES, lambda n, v: cacla.validate(cacla.CaclaHyper(**{n: v}))),
+              (al.HYPER_RULES, lambda n, v: al.validate(al.ALHyper(**{n: v}))),
+              (env.PARAM_RULES, lambda n, v: env.EnvParams(**{n: v}).validate()),
+              (tl.HYPER_RULES, lambda n, v: tl.validate(tl.TLHyper(**{n: v}), tl.TLConfig()))]
+    checked = 0
+    for module, fields in sweep.FIELDS.items():
+        for name, field in fields.items():
+            table, validate = next(((t, f) for t, f in owners if name in t), (None, None))
+            if field.kind != "traced" or table is None:
+                continue
+            rule = table[name]
+            assert (field.rule, field.type) == (rule.text, rule.type), name
+            bad = rule.type(-1)
+            if rule.holds(bad):  # e.g. the touch penalties: any finite number
+                continue
+            with pytest.raises(ValueError, match=rf"^{name}: must be {re.escape(rule.text)}"):
+                validate(name, bad)
+            with pytest.raises(sweep.SweepError,
+                               match=rf"grid.{name}: must be {re.escape(rule.text)}"):
+                sweep.parse_spec({"module": module, "grid": {name: [bad]}})
+            checked += 1
+    assert checked >= 15
 
 
 def test_overrides_replace_grid_lists_and_params(tmp_path):
