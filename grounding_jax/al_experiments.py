@@ -124,8 +124,8 @@ def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] =
         :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``.
     """
     evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=steps))
-    tasks = all_tasks(layouts, actions)
-    n_tasks = int(tasks.action.shape[0])
+    batch = all_tasks(layouts, actions)
+    n_tasks = int(batch.action.shape[0])
 
     def one(agent, key, task, params):
         _, traj, _ = evaluate(agent, key, task, params)
@@ -140,8 +140,8 @@ def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] =
         axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, params)
         over_agents = jax.vmap(over_starts, in_axes=(0, None, None, axes))
         keys = jax.random.split(key, (starts, n_tasks))
-        out = over_agents(agents, keys, tasks, params)
-        out["action"], out["position"] = tasks.action, tasks.position
+        out = over_agents(agents, keys, batch, params)
+        out["action"], out["position"] = batch.action, batch.position
         return out
 
     return success
@@ -308,10 +308,10 @@ def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> di
     agent 0 drawn, all agents' rewards in the JSON."""
     plt = pyplot()
     evaluate = al.make_eval(env_config)
-    tasks = all_tasks((0,))
+    batch = all_tasks((0,))
     run = jax.jit(jax.vmap(jax.vmap(lambda ag, t: evaluate(ag, key, t)[1].reward,
                                     in_axes=(None, 0)), in_axes=(0, None)))
-    r = np.asarray(run(agents, tasks))  # [agents, 9, steps]
+    r = np.asarray(run(agents, batch))  # [agents, 9, steps]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.2), sharey=False)
     for i, ax in enumerate(axes):
         for j, p in enumerate(scene.POSITIONS):
@@ -603,7 +603,7 @@ def point_tail(agents: cacla.Agent, env_params: EnvParams = DEFAULT_PARAMS,
     point task from home, ``[agents, 3 positions x layouts, last]`` (``env_params`` leaves
     shared or per agent)."""
     evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=EVAL_STEPS))
-    tasks = all_tasks(layouts, actions=(0,))
+    batch = all_tasks(layouts, actions=(0,))
     axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, env_params)
 
     @jax.jit
@@ -611,7 +611,7 @@ def point_tail(agents: cacla.Agent, env_params: EnvParams = DEFAULT_PARAMS,
         def one(agent, task, p):
             return evaluate(agent, jax.random.key(0), task, p)[1].metrics["point_l1"][-last:]
         return jax.vmap(jax.vmap(one, in_axes=(None, 0, None)), in_axes=(0, None, axes))(
-            agents, tasks, params)
+            agents, batch, params)
 
     return np.asarray(run(agents, env_params))
 
