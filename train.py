@@ -193,7 +193,7 @@ def al_experiments(key, out: pathlib.Path, st: dict, env_config, al_config
 
     res, agents = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"],
                         phase2=st["al_phase2"], no_tricks_episodes=st["al_no_tricks"],
-                        env_config=env_config, cacla_config=al_config,
+                        env_config=env_config, learner_config=al_config,
                         checkpoints=tuple(c for c in (300, 450, 800)
                                           if c < st["al_phase1"] + st["al_phase2"]))
     print(f"al    trained {res['seeds']} agents, {res['rl_steps']:,} RL steps in "

@@ -36,7 +36,7 @@ import reference_cacla  # noqa: E402
 from env_throughput import raw_rollout  # noqa: E402
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import al, al_experiments, cacla  # noqa: E402
+from grounding_jax import al, al_experiments  # noqa: E402
 from grounding_jax.env import EnvConfig  # noqa: E402
 
 SUBSTEPS = 10
@@ -58,7 +58,7 @@ def bench_trainer(backend: str, batch: int, episodes: int) -> dict:
                       phase1_episodes=episodes, phase2_episodes=0)
     fn = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))
     keys = jax.random.split(jax.random.key(0), batch)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(**HP), **AL)
+    hp = al.hyper(**HP, **AL)
     t = time.perf_counter()
     compiled = fn.lower(keys, hp).compile()
     compile_s = time.perf_counter() - t

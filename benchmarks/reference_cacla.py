@@ -149,7 +149,7 @@ def train(seed: int, phase1_episodes: int = 150, phase2_episodes: int = 300,
           executed_target: float = 0.0) -> tuple[dict[str, np.ndarray], dict]:
     """Train one agent. Returns (per-episode metrics, timing: total/physics seconds, steps).
 
-    The decays and ``executed_target`` mean what they mean in ``grounding_jax.al.ALHyper``:
+    The decays and ``executed_target`` mean what they mean in ``grounding_jax.cacla.CaclaHyper``:
     a rate is ``v * decay ** (episode / (episodes - 1))``; with ``executed_target`` the actor
     is pulled toward the executed (limit-clipped) action instead of the explored one."""
     rng = np.random.default_rng(seed)
@@ -220,7 +220,7 @@ def main(argv: list[str] | None = None) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from grounding_jax import al, al_experiments, cacla
+    from grounding_jax import al, al_experiments
     from grounding_jax._io import atomic_write_text
 
     hp_ref = {**al_experiments.TUNED, **al_experiments.TUNED_AL}  # the shipped settings
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> None:
     ref_ac = np.stack([r["action"] for r, _ in refs])
 
     cfg = al.ALConfig(phase1_episodes=args.phase1, phase2_episodes=args.phase2)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(**al_experiments.TUNED), **al_experiments.TUNED_AL)
+    hp = al.hyper(**al_experiments.TUNED, **al_experiments.TUNED_AL)
     keys = jax.random.split(jax.random.key(0), args.jax_seeds)
     _, m = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))(keys, hp)
     jax_fr, jax_ac = np.asarray(m["final_reward"]), np.asarray(m["action"])

@@ -1,9 +1,12 @@
-"""Action learner (AL) training: CACLA agents acting in the env, the whole loop under lax.scan.
+"""Action learner (AL) training: learners acting in the env, the whole loop under lax.scan.
 
 ``make_train(config) -> train(key, hp) -> (agent, metrics)``; ``vmap`` ``train`` over keys and
 hyperparameters for a batch of agents (on the C MuJoCo backend the batch's physics goes to
-``mujoco.rollout`` in one call per step). The paper's schedule (150 phase-1 + 300 phase-2
-episodes) and the no-tricks schedule (plain CACLA from the start, ~2000 episodes) are configs.
+``mujoco.rollout`` in one call per step). The trainer drives any
+:class:`~grounding_jax.learners.Learner` through its ``init``/``act``/``update``; the learner
+is the one whose config ``ALConfig.learner`` holds (CACLA, the paper's, by default). The
+paper's schedule (150 phase-1 + 300 phase-2 episodes) and the no-tricks schedule (plain CACLA
+from the start, ~2000 episodes) are configs.
 """
 
 from __future__ import annotations
@@ -16,17 +19,17 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from grounding_jax import cacla, rollout, scene, tasks
-from grounding_jax._checks import (
-    FLAG,
-    POSITIVE,
-    UNIT_OPEN_LEFT,
-    Rule,
-    check_rules,
-    integer_at_least,
-    require_int,
+from grounding_jax import cacla, learners, rollout, scene, tasks
+from grounding_jax._checks import FLAG, Rule, check_rules, require_int
+from grounding_jax.env import (
+    DEFAULT_PARAMS,
+    Env,
+    EnvConfig,
+    EnvParams,
+    Task,
+    as_env,
+    scale_joints,
 )
-from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task, scale_joints
 
 #: (phase-1 episodes, phase-2 episodes)
 SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
@@ -38,7 +41,8 @@ class ALConfig:
 
     Attributes:
         env: the env's static config (backend, substeps, episode length).
-        cacla: network sizes, CACLA+Var.
+        learner: the learner's static config (network sizes, ...); its type names the
+            learner (default: CACLA's :class:`cacla.CaclaConfig`).
         phase1_episodes: episodes with the phase-1 actor rule (reward rose).
         phase2_episodes: episodes of plain CACLA after them.
         actions: action indices to draw tasks from (None, the default: every action of the
@@ -48,7 +52,7 @@ class ALConfig:
     """
 
     env: EnvConfig = EnvConfig()
-    cacla: cacla.CaclaConfig = cacla.CaclaConfig()
+    learner: Any = cacla.CaclaConfig()
     phase1_episodes: int = 150
     phase2_episodes: int = 300
     actions: tuple[int, ...] | None = None
@@ -63,9 +67,10 @@ class ALConfig:
         n_actions = self.env.tasks.n_actions
         if self.actions is None:
             object.__setattr__(self, "actions", tuple(range(n_actions)))
-        if self.cacla.task_set != self.env.task_set:
-            raise ValueError(f"cacla.task_set: must be the env's task set "
-                             f"{self.env.task_set!r}, got {self.cacla.task_set!r}")
+        learners.for_config(self.learner)
+        if self.learner.task_set != self.env.task_set:
+            raise ValueError(f"learner.task_set: must be the env's task set "
+                             f"{self.env.task_set!r}, got {self.learner.task_set!r}")
         for name, n in (("actions", n_actions), ("positions", tasks.N_POSITIONS)):
             v = getattr(self, name)
             if not v or any(not 0 <= int(i) < n for i in v):
@@ -85,54 +90,62 @@ class ALConfig:
     def episodes(self) -> int:
         return self.phase1_episodes + self.phase2_episodes
 
+    @property
+    def learning(self) -> learners.Learner:
+        """The :class:`~grounding_jax.learners.Learner` that ``learner`` configures."""
+        return learners.for_config(self.learner)
+
 
 @struct.dataclass
 class ALHyper:
-    """Traced hyperparameters: the learner's, the env's, and learning-rate decay.
+    """Traced hyperparameters: the learner's, the env's, and the trainer's own.
 
-    ``actor_lr_decay`` / ``critic_lr_decay`` / ``sigma_decay``: the value at episode ``e`` is
-    ``v * decay ** (e / (episodes - 1))`` -- geometric from ``v`` at the first episode to
-    ``v * decay`` at the last; 1.0 keeps it constant (the paper).
+    ``learner``: the learner's traced hyperparameters (their type must match the learner of
+    ``ALConfig.learner``; default CACLA's :class:`cacla.CaclaHyper`).
 
-    ``actor_units`` / ``critic_units``: hidden units in use, at most the config's sizes (0: all
-    of them); the rest stay at zero weights (:func:`cacla.init`), so a sweep over hidden sizes
-    runs as one batch at the largest size.
-
-    ``executed_target``: 1.0 -- the actor is pulled toward the action the arm executed (the
+    ``executed_target``: 1.0 -- the learner is given the action the arm executed (the
     explored action after the servo target is clipped at the joint limits, and limited to the
-    actor's range [-1, 1]); 0.0 -- toward the explored action itself (the paper). At a joint
-    limit the explored action has no effect, so the paper's rule can drive the actor's output
-    into the limit and saturate it there, where its tanh gradient is too small to come back.
-
-    ``actor_init_scale``: factor on the actor's initial output weights (1.0: the usual
-    +-1/sqrt(fan-in)); smaller values start from near-zero actions -- the paper's suggestion
-    for a smoother approach to the goal.
+    actor's range [-1, 1]); 0.0 -- the explored action itself (the paper). At a joint limit
+    the explored action has no effect, so the paper's rule can drive the actor's output into
+    the limit and saturate it there, where its tanh gradient is too small to come back.
     """
 
-    cacla: cacla.CaclaHyper = cacla.CaclaHyper()
+    learner: Any = cacla.CaclaHyper()
     env: EnvParams = EnvParams()
-    actor_lr_decay: Any = 1.0
-    critic_lr_decay: Any = 1.0
-    sigma_decay: Any = 1.0
-    actor_units: Any = 0
-    critic_units: Any = 0
-    actor_init_scale: Any = 1.0
     executed_target: Any = 0.0
 
 
 #: What each of :class:`ALHyper`'s own fields accepts (``validate`` and the sweep runner read
 #: it; the learner's and the env's fields have their own tables).
-HYPER_RULES: dict[str, Rule] = {
-    "actor_lr_decay": UNIT_OPEN_LEFT, "critic_lr_decay": UNIT_OPEN_LEFT,
-    "sigma_decay": UNIT_OPEN_LEFT, "actor_init_scale": POSITIVE, "executed_target": FLAG,
-    "actor_units": integer_at_least(0, "an integer >= 0 (0: all units)"),
-    "critic_units": integer_at_least(0, "an integer >= 0 (0: all units)"),
-}
+HYPER_RULES: dict[str, Rule] = {"executed_target": FLAG}
+
+
+def hyper(learner: learners.Learner | None = None, **fields: Any) -> ALHyper:
+    """An :class:`ALHyper` from flat field names: each goes to the learner's hyperparameters
+    (default CACLA's), the env's :class:`EnvParams` or :class:`ALHyper` itself, by name.
+
+    Raises:
+        ValueError: a name that none of the three has (naming it and the accepted ones).
+    """
+    learner = learner or cacla.LEARNER
+    parts: dict[str, dict[str, Any]] = {"learner": {}, "env": {}, "al": {}}
+    owners = (("learner", learner.hyper_type), ("env", EnvParams), ("al", ALHyper))
+    for name, value in fields.items():
+        owner = next((o for o, t in owners if name in t.__dataclass_fields__
+                      and name not in ("learner", "env")), None)
+        if owner is None:
+            accepted = sorted({f for _, t in owners for f in t.__dataclass_fields__}
+                              - {"learner", "env"})
+            raise ValueError(f"{name}: not a field of the learner, the env or the trainer; "
+                             f"accepted fields: {accepted}")
+        parts[owner][name] = value
+    return ALHyper(learner=learner.hyper_type(**parts["learner"]),
+                   env=EnvParams(**parts["env"]), **parts["al"])
 
 
 def validate(hp: ALHyper) -> ALHyper:
     """ValueError naming the field for bad concrete values (before any compile)."""
-    cacla.validate(hp.cacla)
+    check_rules(hp.learner, learners.for_hyper(hp.learner).hyper_rules)
     hp.env.validate()
     check_rules(hp, HYPER_RULES)
     return hp
@@ -153,35 +166,32 @@ def make_episodes(config: ALConfig):
     consecutive slices of the keys; the result equals one :func:`make_train` call.
     """
     env = Env(config.env)
+    lrn = config.learning
     actions = jnp.asarray(config.actions, jnp.int32)
     positions = jnp.asarray(config.positions, jnp.int32)
     n_layouts = len(scene.LAYOUTS) if config.random_layout else 1
     length = config.env.episode_length
 
-    def episode(agent: cacla.Agent, xs, hp: ALHyper):
+    def episode(agent, xs, hp: ALHyper):
         key, plan = xs
         k_task, k_reset, k_steps = jax.random.split(key, 3)
         ka, kp, kl = jax.random.split(k_task, 3)
         task = Task(action=jax.random.choice(ka, actions),
                     position=jax.random.choice(kp, positions),
                     layout=jax.random.randint(kl, (), 0, n_layouts, jnp.int32))
-        x = plan["progress"]
-        chp = hp.cacla.replace(phase1=plan["phase1"],
-                               actor_lr=hp.cacla.actor_lr * hp.actor_lr_decay ** x,
-                               critic_lr=hp.cacla.critic_lr * hp.critic_lr_decay ** x,
-                               sigma=hp.cacla.sigma * hp.sigma_decay ** x)
+        lhp = lrn.at_episode(hp.learner, plan["phase1"], plan["progress"])
         state = env.reset(k_reset, task, hp.env)
 
         def step(carry, k):
             agent, state = carry
-            a, _ = cacla.act(agent, state.obs, k, chp)
+            a, _ = lrn.act(agent, state.obs, k, lhp)
             nxt = env.step(state, a, hp.env)
             target = jnp.where(hp.executed_target > 0.5,
                                executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
                                                hp.env.action_scale), a)
-            tr = cacla.Transition(obs=state.obs, action=target, reward=nxt.reward,
+            tr = learners.Transition(obs=state.obs, action=target, reward=nxt.reward,
                                   next_obs=nxt.obs, done=nxt.done, prev_reward=state.reward)
-            new, info = cacla.update(agent, tr, chp, config.cacla)
+            new, info = lrn.update(agent, tr, lhp, config.learner)
             live = ~state.done  # steps after the episode ended change nothing
             agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
             out = (jnp.where(live, nxt.reward, 0.0), live, nxt.metrics["touched_target"],
@@ -204,26 +214,23 @@ def make_episodes(config: ALConfig):
         }
         return agent, metrics
 
-    def run(agent: cacla.Agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
+    def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
         return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, plan))
 
     return run
 
 
 def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
-             ) -> tuple[cacla.Agent, jax.Array, dict[str, jax.Array]]:
-    """The key split once: (initial agent -- with ``hp``'s hidden units in use --, one key per
-    episode, the per-episode plan: ``phase1`` flags and ``progress`` 0 -> 1)."""
+             ) -> tuple[Any, jax.Array, dict[str, jax.Array]]:
+    """The key split once: (initial learner state -- the learner's ``init`` with ``hp`` --,
+    one key per episode, the per-episode plan: ``phase1`` flags and ``progress`` 0 -> 1)."""
     k_init, k_eps = jax.random.split(key)
     e = jnp.arange(config.episodes)
     plan = {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
             "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
-    hp = ALHyper() if hp is None else hp
-    c = config.cacla
-    agent = cacla.init(k_init, c,
-                       jnp.where(hp.actor_units > 0, hp.actor_units, c.actor_hidden),
-                       jnp.where(hp.critic_units > 0, hp.critic_units, c.critic_hidden))
-    agent = agent.replace(actor=agent.actor.replace(w2=agent.actor.w2 * hp.actor_init_scale))
+    lrn = config.learning
+    learner_hp = lrn.hyper_type() if hp is None else hp.learner
+    agent = lrn.init(k_init, config.learner, learner_hp)
     return agent, jax.random.split(k_eps, config.episodes), plan
 
 
@@ -242,7 +249,7 @@ def make_train(config: ALConfig):
     """
     run = make_episodes(config)
 
-    def train(key: jax.Array, hp: ALHyper) -> tuple[cacla.Agent, dict[str, jax.Array]]:
+    def train(key: jax.Array, hp: ALHyper) -> tuple[Any, dict[str, jax.Array]]:
         agent, keys, plan = schedule(key, config, hp)
         return run(agent, keys, plan, hp)
 
@@ -312,24 +319,27 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
     return agents, metrics
 
 
-def make_eval(env: Env | EnvConfig | None = None, steps: int | None = None):
+def make_eval(env: Env | EnvConfig | None = None, steps: int | None = None,
+              learner: learners.Learner | None = None):
     """Build ``evaluate(agent, key, task, env_params) -> (first, trajectory, hidden)``: the
-    greedy actor (no exploration) for one episode; the trajectory is the env states after
-    each step, stacked, and ``hidden`` the actor's hidden activations at each step (for the
-    namer).
+    learner's greedy policy (no exploration) for one episode; the trajectory is the env states
+    after each step, stacked, and ``hidden`` the policy's hidden features at each step (for
+    the namer).
 
     Args:
         env: the env (or its static config; default ``EnvConfig()``).
         steps: steps per episode (default: the env's episode length).
+        learner: the learner whose states are evaluated (default: the one the agent's type
+            belongs to).
     """
-    env = env if isinstance(env, Env) else Env(env or EnvConfig())
+    env = as_env(env)
     n = env.config.episode_length if steps is None else steps
 
-    def evaluate(agent: cacla.Agent, key: jax.Array, task: Task,
-                 env_params: EnvParams = DEFAULT_PARAMS):
+    def evaluate(agent, key: jax.Array, task: Task, env_params: EnvParams = DEFAULT_PARAMS):
+        lrn = learner or learners.for_state(agent)
+
         def policy(state, _):
-            hidden, a = cacla.actor_apply(agent.actor, state.obs)
-            return a, hidden
+            return lrn.policy(agent, state.obs)
 
         first = env.reset(key, task, env_params)
         traj, hidden = rollout.rollout(env, first, policy, n, env_params)

@@ -16,17 +16,17 @@ after a wrong object moved (such an episode fails every criterion).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 import sys
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, rollout, scene, scripted, tasks
+from grounding_jax import al, cacla, learners, rollout, scene, scripted, tasks
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import (
     DEFAULT_PARAMS,
@@ -34,6 +34,7 @@ from grounding_jax.env import (
     EnvConfig,
     EnvParams,
     Task,
+    as_env,
     make_task,
     scale_joints,
 )
@@ -109,7 +110,7 @@ def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = 
     return {"success": ok.astype(jnp.float32), **out}
 
 
-def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = ALL_LAYOUTS,
+def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = ALL_LAYOUTS,
                  starts: int = 1, actions: tuple[int, ...] = (0, 1, 2),
                  steps: int = EVAL_STEPS):
     """Build ``success(agents, key, env_params) -> dict`` for a batch of agents
@@ -123,19 +124,20 @@ def make_success(env_config: EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] =
         A function whose dict holds arrays ``[agents, starts, tasks]`` (see
         :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``.
     """
-    evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=steps))
+    env = as_env(env, steps)
+    evaluate = al.make_eval(env)
     batch = all_tasks(layouts, actions)
     n_tasks = int(batch.action.shape[0])
 
     def one(agent, key, task, params):
         _, traj, _ = evaluate(agent, key, task, params)
-        return episode_success(traj, task, task_set=env_config.tasks)
+        return episode_success(traj, task, task_set=env.tasks)
 
     over_tasks = jax.vmap(one, in_axes=(None, 0, 0, None))
     over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
 
     @jax.jit
-    def success(agents: cacla.Agent, key: jax.Array, params: EnvParams = DEFAULT_PARAMS):
+    def success(agents, key: jax.Array, params: EnvParams = DEFAULT_PARAMS):
         # a params leaf with a leading axis is per agent (a sweep's traced env fields)
         axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, params)
         over_agents = jax.vmap(over_starts, in_axes=(0, None, None, axes))
@@ -177,7 +179,7 @@ def success_table(out: dict[str, jax.Array]) -> dict[str, object]:
 SUCCESS_METRICS = ("point", "touch", "push", "rand_point", "mean")
 
 
-def make_success_rates(env_config: EnvConfig = DEFAULT_ENV, batch: int = 8,
+def make_success_rates(env: Env | EnvConfig = DEFAULT_ENV, batch: int = 8,
                        layouts: tuple[int, ...] = ALL_LAYOUTS):
     """Build ``rates(agents, key, env_params) -> {name: [agents]}``: each agent's success rate
     per action from home, point from random starts (one per position and layout, within
@@ -186,10 +188,11 @@ def make_success_rates(env_config: EnvConfig = DEFAULT_ENV, batch: int = 8,
     Agents are evaluated ``batch`` at a time (the stacked trajectories of a large batch would
     not fit in memory). ``env_params`` leaves may be per agent (a sweep's traced env fields).
     """
-    home = make_success(env_config, layouts)
-    rand = make_success(env_config, layouts, actions=(0,))
+    env = as_env(env)
+    home = make_success(env, layouts)
+    rand = make_success(env, layouts, actions=(0,))
 
-    def rates(agents: cacla.Agent, key: jax.Array, env_params: EnvParams = DEFAULT_PARAMS
+    def rates(agents, key: jax.Array, env_params: EnvParams = DEFAULT_PARAMS
               ) -> dict[str, np.ndarray]:
         k_home, k_rand = jax.random.split(key)
         n = jax.tree.leaves(agents)[0].shape[0]
@@ -213,16 +216,18 @@ def _take(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
 
-def make_switch_eval(env_config: EnvConfig = DEFAULT_ENV, steps: int = 100,
+def make_switch_eval(env: Env | EnvConfig = DEFAULT_ENV, steps: int = 100,
                      switch_at: int = 20):
     """Build ``run(agent, key, first_task, second_task, env_params) -> traj``: the greedy
-    actor for ``steps`` steps, the task replaced by ``second_task`` after ``switch_at`` steps
+    policy for ``steps`` steps, the task replaced by ``second_task`` after ``switch_at`` steps
     (Fig 13). The episode length is raised to ``steps`` so it does not end on its own."""
-    env = Env(dataclasses.replace(env_config, episode_length=steps))
+    env = as_env(env, steps)
 
     def run(agent, key, first: Task, second: Task, params: EnvParams = DEFAULT_PARAMS):
+        lrn = learners.for_state(agent)
+
         def policy(state, _):
-            return cacla.actor_apply(agent.actor, state.obs)[1], None
+            return lrn.policy(agent, state.obs)[0], None
 
         return rollout.rollout(env, env.reset(key, first, params), policy, steps, params,
                                switch=(switch_at, second))[0]
@@ -242,7 +247,7 @@ def switch_pairs(layouts: tuple[int, ...] = SHAPE_LAYOUTS) -> tuple[Task, Task]:
     return Task(r[0], r[1], r[2]), Task(r[3], r[4], r[2])
 
 
-def make_switch_success(env_config: EnvConfig = DEFAULT_ENV, steps: int = EVAL_STEPS,
+def make_switch_success(env: Env | EnvConfig = DEFAULT_ENV, steps: int = EVAL_STEPS,
                         switch_at: int = 20, layouts: tuple[int, ...] = SHAPE_LAYOUTS):
     """Build ``success(agents, key) -> dict`` over :func:`switch_pairs`: each switched
     episode is judged by the second task's criterion at its end, counting only what happened
@@ -253,18 +258,19 @@ def make_switch_success(env_config: EnvConfig = DEFAULT_ENV, steps: int = EVAL_S
         A function whose dict holds arrays ``[agents, pairs]`` plus ``action`` ``[pairs]``
         (the second task's action).
     """
-    run = make_switch_eval(env_config, steps, switch_at)
+    env = as_env(env, steps)
+    run = make_switch_eval(env, steps, switch_at)
     first, second = switch_pairs(layouts)
     params = DEFAULT_PARAMS.replace(wrong_move_extra_steps=steps + 1)
 
     def one(agent, key, t1, t2):
         return episode_success(run(agent, key, t1, t2, params), t2, since=switch_at,
-                               task_set=env_config.tasks)
+                               task_set=env.tasks)
 
     over_pairs = jax.vmap(one, in_axes=(None, None, 0, 0))
 
     @jax.jit
-    def success(agents: cacla.Agent, key: jax.Array):
+    def success(agents, key: jax.Array):
         out = jax.vmap(over_pairs, in_axes=(0, None, None, None))(agents, key, first, second)
         out["action"], out["position"] = second.action, second.position
         return out
@@ -303,11 +309,11 @@ def success_curve(success: dict, out, phase1_episodes: int = 0,
     return data
 
 
-def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> dict:
+def fig10(agents, key: jax.Array, env: Env | EnvConfig, out) -> dict:
     """Fig 10: reward per step of the greedy actor for the 9 action-position pairs (layout 0);
     agent 0 drawn, all agents' rewards in the JSON."""
     plt = pyplot()
-    evaluate = al.make_eval(env_config)
+    evaluate = al.make_eval(env)
     batch = all_tasks((0,))
     run = jax.jit(jax.vmap(jax.vmap(lambda ag, t: evaluate(ag, key, t)[1].reward,
                                     in_axes=(None, 0)), in_axes=(0, None)))
@@ -329,11 +335,11 @@ def fig10(agents: cacla.Agent, key: jax.Array, env_config: EnvConfig, out) -> di
     return data
 
 
-def fig11(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
+def fig11(agent, key: jax.Array, env: Env | EnvConfig, out,
           starts: int = 5, start_noise: float = 0.5) -> dict:
     """Fig 11: "point left" from ``starts`` random start poses: joints and reward per step."""
     plt = pyplot()
-    evaluate = al.make_eval(env_config)
+    evaluate = al.make_eval(env)
     params = EnvParams(start_noise=start_noise)
     task = make_task("point", "left")
     first, traj, _ = jax.jit(jax.vmap(lambda k: evaluate(agent, k, task, params)))(
@@ -372,11 +378,11 @@ SWITCHES = (("point", "left", "point", "right"), ("point", "middle", "push", "mi
             ("push", "right", "touch", "left"), ("touch", "middle", "point", "left"))
 
 
-def fig13(agent: cacla.Agent, key: jax.Array, env_config: EnvConfig, out,
+def fig13(agent, key: jax.Array, env: Env | EnvConfig, out,
           steps: int = 100, switch_at: int = 20) -> dict:
     """Fig 13: 100-step runs where the action or the target changes at step 20."""
     plt = pyplot()
-    run = jax.jit(make_switch_eval(env_config, steps, switch_at))
+    run = jax.jit(make_switch_eval(env, steps, switch_at))
     fig, axes = plt.subplots(1, len(SWITCHES), figsize=(4 * len(SWITCHES), 3.2))
     rows = []
     for ax, (a1, p1, a2, p2) in zip(axes, SWITCHES, strict=True):
@@ -459,7 +465,7 @@ TUNED = {"actor_lr": 0.03, "critic_lr": 0.3, "sigma": 0.1, "gamma": 0.0}
 TUNED_AL = {"actor_lr_decay": 0.03, "sigma_decay": 0.3, "executed_target": 1.0}
 
 
-def exploration_knocks(key: jax.Array, env_config: EnvConfig = DEFAULT_ENV,
+def exploration_knocks(key: jax.Array, env: Env | EnvConfig = DEFAULT_ENV,
                        sigmas: tuple[float, ...] = (0.1, 0.3), episodes: int = 16) -> dict:
     """How often exploration alone knocks a wrong object: a perfect point policy (tracking the
     stored pose) plus Gaussian noise of each ``sigma``, ``episodes`` per position.
@@ -467,20 +473,21 @@ def exploration_knocks(key: jax.Array, env_config: EnvConfig = DEFAULT_ENV,
     Returns:
         {sigma: {"wrong_moved_share": ..., "final_point_l1": ...}} over all episodes.
     """
-    env = Env(env_config)
+    env = as_env(env)
+    length = env.config.episode_length
     poses = jnp.asarray(scene.pointing_configs(), jnp.float32)
 
     def episode(k, position, sigma):
         task = make_task("point", 0)
         task = task.replace(position=position)
-        waypoints = jnp.repeat(poses[position][None], env_config.episode_length, axis=0)
+        waypoints = jnp.repeat(poses[position][None], length, axis=0)
 
         def policy(s, kk):
             a = scripted.tracking_action(waypoints, s.step, s.obs)
             return a + sigma * jax.random.normal(kk, (4,)), None
 
-        traj, _ = rollout.rollout(env, env.reset(k, task), policy, env_config.episode_length,
-                                  xs=jax.random.split(k, env_config.episode_length))
+        traj, _ = rollout.rollout(env, env.reset(k, task), policy, length,
+                                  xs=jax.random.split(k, length))
         last = jax.tree.map(lambda x: x[-1], traj)
         return last.wrong_since >= 0, last.metrics["point_l1"]
 
@@ -518,7 +525,7 @@ def _summary(table: dict, out: dict) -> dict:
 def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_episodes: int,
         env_config: EnvConfig = DEFAULT_ENV, hyper: dict | None = None,
         checkpoints: tuple[int, ...] = (450,), random_starts: int = 1,
-        decay: dict | None = None, cacla_config: cacla.CaclaConfig | None = None) -> dict:
+        decay: dict | None = None, learner_config: Any = None) -> dict:
     """The AL results: success rates (home and random starts) at each of ``checkpoints``
     episodes and at the end, Figs 10, 11, 13 (agent 0 of the final batch) and Fig 14 (a
     no-tricks run of ``no_tricks_episodes``). Writes PNG + JSON under ``out``.
@@ -531,24 +538,26 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
         no_tricks_episodes: episodes of the no-tricks run (0 skips Fig 14).
         env_config: static env config (backend).
         hyper: CACLA hyperparameters (default :data:`TUNED`).
-        decay: other ``al.ALHyper`` fields: decays, executed_target, ... (default
-            :data:`TUNED_AL`).
+        decay: the other shipped fields -- decays, executed_target, ... -- by name (see
+            :func:`al.hyper`; default :data:`TUNED_AL`).
         checkpoints: extra episode counts at which success is measured.
         random_starts: random start poses per point task and layout (1: 108 starts).
-        cacla_config: static CACLA config (network sizes; default ``CaclaConfig()``).
+        learner_config: the learner's static config (network sizes; default
+            ``CaclaConfig()``).
 
     Returns:
         (results dict -- what the JSON files hold, the trained agents [seeds]).
     """
     hyper = dict(TUNED if hyper is None else hyper)
     decay = dict(TUNED_AL if decay is None else decay)
-    hp = al.validate(al.ALHyper(cacla=cacla.CaclaHyper(**hyper), **decay))
+    hp = al.validate(al.hyper(**hyper, **decay))
     k_train, k_nt, k_home, k_rand, k10, k11, k13, k_knock = jax.random.split(key, 8)
-    cfg = al.ALConfig(env=env_config, cacla=cacla_config or cacla.CaclaConfig(),
+    cfg = al.ALConfig(env=env_config, learner=learner_config or cacla.CaclaConfig(),
                       phase1_episodes=phase1, phase2_episodes=phase2)
-    home = make_success(env_config)
-    rand = make_success(env_config, starts=random_starts, actions=(0,))
-    switch = make_switch_success(env_config)
+    env = Env(env_config)  # every evaluation below shares it
+    home = make_success(env)
+    rand = make_success(env, starts=random_starts, actions=(0,))
+    switch = make_switch_success(env)
     rand_params = EnvParams(start_noise=RANDOM_START_NOISE)
     success: dict[str, dict] = {}
 
@@ -575,13 +584,14 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
            "random_start_noise": RANDOM_START_NOISE, "success": success,
            "final": success[str(cfg.episodes)], "train_s": train_s,
            "rl_steps": int(np.asarray(metrics["steps"]).sum()), "training_tail": _tail(metrics),
-           "exploration_knocks": exploration_knocks(k_knock, env_config)}
+           "exploration_knocks": exploration_knocks(k_knock, env)}
     res["success_curve"] = success_curve(success, out, phase1)
-    res["fig10"] = fig10(agents, k10, env_config, out)
-    res["fig11"] = fig11(agent0, k11, env_config, out)
-    res["fig13"] = fig13(agent0, k13, env_config, out)
+    res["fig10"] = fig10(agents, k10, env, out)
+    res["fig11"] = fig11(agent0, k11, env, out)
+    res["fig13"] = fig13(agent0, k13, env, out)
     if no_tricks_episodes:
-        nt = al.ALConfig(env=env_config, phase1_episodes=0, phase2_episodes=no_tricks_episodes)
+        nt = al.ALConfig(env=env_config, learner=cfg.learner, phase1_episodes=0,
+                         phase2_episodes=no_tricks_episodes)
         _, m_nt = jax.jit(jax.vmap(al.make_train(nt), in_axes=(0, None)))(
             jax.random.split(k_nt, seeds), hp)
         res["fig14"] = fig14(m_nt, out)
@@ -596,13 +606,13 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
 
 
 # ------------------------------------------------------------------- the point tail (lever)
-def point_tail(agents: cacla.Agent, env_params: EnvParams = DEFAULT_PARAMS,
-               env_config: EnvConfig = DEFAULT_ENV, last: int = 20,
+def point_tail(agents, env_params: EnvParams = DEFAULT_PARAMS,
+               env: Env | EnvConfig = DEFAULT_ENV, last: int = 20,
                layouts: tuple[int, ...] = ALL_LAYOUTS) -> np.ndarray:
     """L1 to the pointing pose over the last ``last`` of ``EVAL_STEPS`` greedy steps of every
     point task from home, ``[agents, 3 positions x layouts, last]`` (``env_params`` leaves
     shared or per agent)."""
-    evaluate = al.make_eval(dataclasses.replace(env_config, episode_length=EVAL_STEPS))
+    evaluate = al.make_eval(as_env(env, EVAL_STEPS))
     batch = all_tasks(layouts, actions=(0,))
     axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, env_params)
 

@@ -11,9 +11,11 @@
   ``CaclaConfig.var``): the actor update is repeated ``ceil(delta / sqrt(var_delta))`` times
   (at most ``max_var_repeats``), with ``var_delta`` a running variance of delta.
 
-Network sizes are static (``CaclaConfig``); learning rates, sigma, gamma and the phase switch
-are traced (``CaclaHyper``). A smaller hidden layer can still be traced: :func:`init` leaves the
-units past ``*_units`` at zero weights, where they stay (see there).
+Network sizes are static (``CaclaConfig``); learning rates, sigma, gamma, the phase switch,
+the decays and the hidden units in use are traced (``CaclaHyper``). A smaller hidden layer can
+still be traced: :func:`init` leaves the units past ``*_units`` at zero weights, where they
+stay (see there). :data:`LEARNER` is CACLA behind the AL trainer's learner seam
+(:mod:`grounding_jax.learners`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax import tasks
+from grounding_jax import learners, tasks
 from grounding_jax._checks import (
     FLAG,
     POSITIVE,
@@ -34,8 +36,10 @@ from grounding_jax._checks import (
     UNIT_OPEN_LEFT,
     Rule,
     check_rules,
+    integer_at_least,
     require_int,
 )
+from grounding_jax.learners import Transition
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,8 +87,18 @@ class CaclaHyper:
         sigma: standard deviation of the Gaussian exploration (scaled joint units).
         gamma: discount factor (paper's best: 0).
         phase1: 1.0 -- update the actor when the reward rose (paper's phase 1);
-            0.0 -- when delta > 0 (plain CACLA, phase 2).
+            0.0 -- when delta > 0 (plain CACLA, phase 2). The AL trainer sets it per episode
+            from its schedule (:func:`at_episode`).
         var_beta: rate of the running variance of delta (CACLA+Var only).
+        actor_lr_decay, critic_lr_decay, sigma_decay: the value at training progress ``x``
+            (0 at the first episode, 1 at the last) is ``v * decay ** x`` -- geometric from
+            ``v`` to ``v * decay``; 1.0 keeps it constant (the paper).
+        actor_units, critic_units: hidden units in use, at most the config's sizes (0: all of
+            them); the rest stay at zero weights (:func:`init`), so a sweep over hidden sizes
+            runs as one batch at the largest size.
+        actor_init_scale: factor on the actor's initial output weights (1.0: the usual
+            +-1/sqrt(fan-in)); smaller values start from near-zero actions -- the paper's
+            suggestion for a smoother approach to the goal.
     """
 
     actor_lr: Any = 0.001
@@ -93,12 +107,22 @@ class CaclaHyper:
     gamma: Any = 0.0
     phase1: Any = 0.0
     var_beta: Any = 0.001
+    actor_lr_decay: Any = 1.0
+    critic_lr_decay: Any = 1.0
+    sigma_decay: Any = 1.0
+    actor_units: Any = 0
+    critic_units: Any = 0
+    actor_init_scale: Any = 1.0
 
 
 #: What each field of :class:`CaclaHyper` accepts (``validate`` and the sweep runner read it).
 HYPER_RULES: dict[str, Rule] = {
     "actor_lr": POSITIVE, "critic_lr": POSITIVE, "sigma": POSITIVE, "gamma": UNIT_CLOSED,
     "phase1": FLAG, "var_beta": UNIT_OPEN_LEFT,
+    "actor_lr_decay": UNIT_OPEN_LEFT, "critic_lr_decay": UNIT_OPEN_LEFT,
+    "sigma_decay": UNIT_OPEN_LEFT, "actor_init_scale": POSITIVE,
+    "actor_units": integer_at_least(0, "an integer >= 0 (0: all units)"),
+    "critic_units": integer_at_least(0, "an integer >= 0 (0: all units)"),
 }
 
 
@@ -123,21 +147,6 @@ class Agent:
     actor: MLP
     critic: MLP
     var_delta: jax.Array
-
-
-@struct.dataclass
-class Transition:
-    """One step: ``obs`` -> explored ``action`` -> ``reward`` (r_{t+1}) and ``next_obs``.
-
-    ``prev_reward`` is r_t (the phase-1 rule compares the two); ``done`` cuts the bootstrap.
-    """
-
-    obs: jax.Array
-    action: jax.Array
-    reward: jax.Array
-    next_obs: jax.Array
-    done: jax.Array
-    prev_reward: jax.Array
 
 
 def _mlp_init(key: jax.Array, n_in: int, n_hidden: int, n_out: int, units=None) -> MLP:
@@ -181,10 +190,34 @@ def init(key: jax.Array, config: CaclaConfig = CaclaConfig(), actor_units=None,
                  var_delta=jnp.ones((), jnp.float32))
 
 
+def start(key: jax.Array, config: CaclaConfig, hp: CaclaHyper) -> Agent:
+    """A fresh agent for training: :func:`init` with ``hp``'s hidden units in use and the
+    actor's output weights times ``hp.actor_init_scale``."""
+    agent = init(key, config,
+                 jnp.where(hp.actor_units > 0, hp.actor_units, config.actor_hidden),
+                 jnp.where(hp.critic_units > 0, hp.critic_units, config.critic_hidden))
+    return agent.replace(actor=agent.actor.replace(w2=agent.actor.w2 * hp.actor_init_scale))
+
+
+def at_episode(hp: CaclaHyper, phase1: jax.Array, progress: jax.Array) -> CaclaHyper:
+    """The hyperparameters of one training episode: the schedule's phase switch, and the
+    rates and sigma decayed to training progress ``progress`` (0 -> 1)."""
+    x = progress
+    return hp.replace(phase1=phase1, actor_lr=hp.actor_lr * hp.actor_lr_decay ** x,
+                      critic_lr=hp.critic_lr * hp.critic_lr_decay ** x,
+                      sigma=hp.sigma * hp.sigma_decay ** x)
+
+
 def actor_apply(actor: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Actor forward pass: (hidden activations [H], action [4] in (-1, 1))."""
     h = jnp.tanh(obs @ actor.w1 + actor.b1)
     return h, jnp.tanh(h @ actor.w2 + actor.b2)
+
+
+def policy(agent: Agent, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The greedy action [4] and the actor's hidden activations [H]."""
+    hidden, action = actor_apply(agent.actor, obs)
+    return action, hidden
 
 
 def critic_apply(critic: MLP, obs: jax.Array) -> jax.Array:
@@ -242,3 +275,10 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
     actor = jax.tree.map(lambda new, old: jnp.where(improved, new, old), moved, agent.actor)
     info = {"delta": delta, "actor_updated": improved.astype(jnp.float32), "value": v}
     return Agent(actor=actor, critic=critic, var_delta=var_delta), info
+
+
+#: CACLA behind the AL trainer's learner seam (:mod:`grounding_jax.learners`).
+LEARNER = learners.register(learners.Learner(
+    name="cacla", config_type=CaclaConfig, hyper_type=CaclaHyper, state_type=Agent,
+    hyper_rules=HYPER_RULES, init=start, act=act, update=update, policy=policy,
+    at_episode=at_episode))

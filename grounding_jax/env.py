@@ -24,6 +24,7 @@ NaN entries of an action are replaced by zero (no move) and counted in
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from typing import Any
 
@@ -359,6 +360,20 @@ class Env:
         # its physics is not run at all)
         return jax.tree.map(lambda n, o: jnp.where(state.done, o, n), new, state)
 
+    def with_episode_length(self, steps: int) -> Env:
+        """This env with episodes of ``steps`` steps, sharing its physics backend and tables
+        (an evaluation that runs past the training episode length uses it).
+
+        Raises:
+            ValueError: ``steps`` is not an integer >= 1 (naming ``episode_length``).
+        """
+        config = dataclasses.replace(self.config, episode_length=steps)
+        if config == self.config:
+            return self
+        other = copy.copy(self)
+        other.config = config
+        return other
+
     def set_task(self, state: State, task: Task) -> State:
         """Replace the goal mid-episode (Fig 13): the arm and objects stay where they are.
 
@@ -370,6 +385,14 @@ class Env:
         obs = state.obs.at[ts.obs_action].set(jax.nn.one_hot(task.action, ts.n_actions))
         obs = obs.at[ts.obs_position].set(jax.nn.one_hot(task.position, tasks.N_POSITIONS))
         return state.replace(task=task, obs=obs)
+
+
+def as_env(env: Env | EnvConfig | None = None, steps: int | None = None) -> Env:
+    """``env`` itself, or an :class:`Env` built from a static config (default
+    ``EnvConfig()``); with ``steps``, its episodes last that many steps
+    (:meth:`Env.with_episode_length`)."""
+    env = env if isinstance(env, Env) else Env(EnvConfig() if env is None else env)
+    return env if steps is None else env.with_episode_length(steps)
 
 
 def make_env(backend: str = "mujoco", **kwargs: Any) -> Env:

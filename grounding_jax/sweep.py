@@ -87,7 +87,10 @@ def _int_at_least(n: int) -> tuple[str, Callable[[Any], bool]]:
     return f"an integer >= {n}", lambda v: v >= n
 
 
-_CH, _DH, _EC = cacla.CaclaHyper(), al.ALHyper(), EnvConfig()
+_DH, _EC = al.ALHyper(), EnvConfig()
+#: the learner AL sweeps train (its traced fields are sweep fields, read from its rule table)
+_LEARNER = cacla.LEARNER
+_LH = _LEARNER.hyper_type()
 _EP, _TH, _TC = EnvParams(), tl.TLHyper(), tl.TLConfig()
 
 def _traced(rule: Rule, default: Any) -> Field:
@@ -103,9 +106,10 @@ def _traced_from(rules: dict[str, Rule], defaults: Any, names: Sequence[str] | N
 #: the traced AL fields a sweep may set, by the dataclass they belong to (the hidden sizes
 #: are the sweep's own: they become ``actor_units``/``critic_units``)
 _AL_SWEPT = {
-    "cacla": ("actor_lr", "critic_lr", "sigma", "gamma", "var_beta"),  # CaclaHyper
-    "al": ("actor_lr_decay", "critic_lr_decay", "sigma_decay", "actor_init_scale",
-           "executed_target"),  # ALHyper
+    # all the learner's but the phase switch (the schedule sets it) and the units in use
+    "learner": tuple(n for n in _LEARNER.hyper_rules
+                     if n not in ("phase1", "actor_units", "critic_units")),
+    "al": tuple(al.HYPER_RULES),  # ALHyper's own
     "env": ("action_scale", "touch_other_penalty", "touch_target_penalty",
             "start_noise"),  # EnvParams
 }
@@ -124,7 +128,7 @@ _FIELDS: dict[str, dict[str, Field]] = {
         "substeps": Field("static", int, _EC.substeps, *_int_at_least(1)),
         "episode_length": Field("static", int, _EC.episode_length, *_int_at_least(1)),
         "random_layout": Field("static", bool, True),
-        **_traced_from(cacla.HYPER_RULES, _CH, _AL_SWEPT["cacla"]),
+        **_traced_from(_LEARNER.hyper_rules, _LH, _AL_SWEPT["learner"]),
         **_traced_from(al.HYPER_RULES, _DH, _AL_SWEPT["al"]),
         **_traced_from(env.PARAM_RULES, _EP, _AL_SWEPT["env"]),
     },
@@ -378,7 +382,7 @@ def _al_config(pts: list[dict], static: dict[str, Any]) -> al.ALConfig:
     return al.ALConfig(
         env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
                       episode_length=static["episode_length"]),
-        cacla=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
+        learner=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
                                 critic_hidden=max(p["critic_hidden"] for p in pts),
                                 var=static["var"]),
         phase1_episodes=static["phase1_episodes"],
@@ -404,11 +408,11 @@ def _hyper(spec: SweepSpec, rows: list[dict]):
 
 def _al_hyper(rows: list[dict]) -> al.ALHyper:
     f32 = jnp.float32
-    ch = cacla.CaclaHyper(**{k: _column(rows, k, f32) for k in _AL_SWEPT["cacla"]})
+    lh = _LEARNER.hyper_type(**{k: _column(rows, k, f32) for k in _AL_SWEPT["learner"]},
+                             actor_units=_column(rows, "actor_hidden", jnp.int32),
+                             critic_units=_column(rows, "critic_hidden", jnp.int32))
     env_params = EnvParams(**{k: _column(rows, k, f32) for k in _AL_SWEPT["env"]})
-    return al.ALHyper(cacla=ch, env=env_params,
-                      actor_units=_column(rows, "actor_hidden", jnp.int32),
-                      critic_units=_column(rows, "critic_hidden", jnp.int32),
+    return al.ALHyper(learner=lh, env=env_params,
                       **{k: _column(rows, k, f32) for k in _AL_SWEPT["al"]})
 
 

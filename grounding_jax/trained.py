@@ -26,7 +26,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from grounding_jax import al, cacla, esn, scene, tasks, tl, tl_data
+from grounding_jax import al, cacla, esn, learners, scene, tasks, tl, tl_data
 from grounding_jax.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, make_task
 
@@ -78,14 +78,14 @@ class TrainedAL:
 
     def act(self, obs: jax.Array) -> jax.Array:
         """The greedy action (no exploration) for observations ``[..., 11]``."""
-        return cacla.actor_apply(self.agent.actor, obs)[1]
+        return learners.for_config(self.config).policy(self.agent, obs)[0]
 
     def hidden_layer(self, obs: jax.Array) -> jax.Array:
-        """The actor's hidden activations (the AN's "how" input)."""
-        return cacla.actor_apply(self.agent.actor, obs)[0]
+        """The policy's hidden features (the AN's "how" input)."""
+        return learners.for_config(self.config).policy(self.agent, obs)[1]
 
     def value(self, obs: jax.Array) -> jax.Array:
-        """The critic's value of an observation ``[11]``."""
+        """The critic's value of an observation ``[11]`` (CACLA's critic)."""
         return cacla.critic_apply(self.agent.critic, obs)
 
 

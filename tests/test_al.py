@@ -3,13 +3,18 @@ learned (the greedy actor ends far closer to the pointing pose than an untrained
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import struct
 
-from grounding_jax import al, al_experiments, cacla, scene
+from grounding_jax import al, al_experiments, cacla, learners, scene
 from grounding_jax import env as env_mod
+from grounding_jax._checks import POSITIVE
 
 SMALL = al.ALConfig(phase1_episodes=2, phase2_episodes=2)
 #: measured on test_point_left_is_learned (TUNED + TUNED_AL): 144 of 144 episodes (L1 median
@@ -38,10 +43,10 @@ def test_vmapped_agents_equal_separate_runs(small_train):
     keys = jax.random.split(jax.random.key(0), 3)
     lrs = jnp.array([0.001, 0.01, 0.003])
     hp = jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x), (3,)), al.ALHyper())
-    hp = hp.replace(cacla=hp.cacla.replace(actor_lr=lrs))
+    hp = hp.replace(learner=hp.learner.replace(actor_lr=lrs))
     agents, ms = jax.jit(jax.vmap(al.make_train(SMALL)))(keys, hp)
     for i in range(3):
-        hp_i = al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=lrs[i]))
+        hp_i = al.ALHyper(learner=cacla.CaclaHyper(actor_lr=lrs[i]))
         agent, m = small_train(keys[i], hp_i)
         np.testing.assert_allclose(np.asarray(m["return"]), np.asarray(ms["return"][i]),
                                    rtol=1e-5, atol=1e-5)
@@ -53,11 +58,13 @@ def test_vmapped_agents_equal_separate_runs(small_train):
     (lambda: al.ALConfig.from_schedule("fast"), "schedule"),
     (lambda: al.ALConfig(phase1_episodes=-1), "phase1_episodes"),
     (lambda: al.ALConfig(actions=(0, 5)), "actions"),
-    (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(sigma=0.0))), "sigma"),
-    (lambda: al.validate(al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=-1.0))), "actor_lr"),
-    (lambda: al.validate(al.ALHyper(sigma_decay=0.0)), "sigma_decay"),
-    (lambda: al.validate(al.ALHyper(actor_lr_decay=1.5)), "actor_lr_decay"),
-    (lambda: al.validate(al.ALHyper(actor_init_scale=0.0)), "actor_init_scale"),
+    (lambda: al.validate(al.hyper(sigma=0.0)), "sigma"),
+    (lambda: al.validate(al.hyper(actor_lr=-1.0)), "actor_lr"),
+    (lambda: al.validate(al.hyper(sigma_decay=0.0)), "sigma_decay"),
+    (lambda: al.validate(al.hyper(actor_lr_decay=1.5)), "actor_lr_decay"),
+    (lambda: al.validate(al.hyper(actor_init_scale=0.0)), "actor_init_scale"),
+    (lambda: al.hyper(actor_lr=0.1, step_size=1.0), "step_size"),
+    (lambda: al.ALConfig(learner=object()), "learner"),
     (lambda: al.validate(al.ALHyper(executed_target=0.5)), "executed_target"),
 ])
 def test_bad_config_names_the_field(make, field):
@@ -77,7 +84,7 @@ def test_executed_action_is_the_clipped_servo_move():
 def test_actor_init_scale_scales_the_first_actions():
     cfg = al.ALConfig()
     full, _, _ = al.schedule(jax.random.key(3), cfg)
-    small, _, _ = al.schedule(jax.random.key(3), cfg, al.ALHyper(actor_init_scale=0.1))
+    small, _, _ = al.schedule(jax.random.key(3), cfg, al.hyper(actor_init_scale=0.1))
     np.testing.assert_allclose(small.actor.w2, 0.1 * full.actor.w2, rtol=1e-6)
     np.testing.assert_array_equal(small.actor.w1, full.actor.w1)
 
@@ -95,8 +102,7 @@ def test_point_left_is_learned():
     # (final L1 < 0.1, at rest, nothing knocked). See MIN_SUCCESS for what was measured.
     cfg = al.ALConfig(phase1_episodes=150, phase2_episodes=300, actions=(0,), positions=(0,),
                       random_layout=False)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(**al_experiments.TUNED),
-                    **al_experiments.TUNED_AL)
+    hp = al.hyper(**al_experiments.TUNED, **al_experiments.TUNED_AL)
     keys = jax.random.split(jax.random.key(0), 4)
     trained, m = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))(keys, hp)
     untrained = jax.vmap(lambda k: al.schedule(k, cfg)[0])(keys)
@@ -137,7 +143,7 @@ def test_actor_lr_decay_freezes_the_actor_in_the_last_episode():
     # phase-1 rule on point tasks: the actor is updated in most steps of every episode
     cfg = al.ALConfig(phase1_episodes=4, phase2_episodes=0, actions=(0,), random_layout=False)
     keys = jax.random.split(jax.random.key(2), 1)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(actor_lr=0.05), actor_lr_decay=1e-9)
+    hp = al.hyper(actor_lr=0.05, actor_lr_decay=1e-9)
     seen = {}
     agents, _ = al.train_in_chunks(cfg, keys, hp, [3, 4],
                                    lambda e, a, _: seen.setdefault(e, jax.device_get(a)))
@@ -145,6 +151,72 @@ def test_actor_lr_decay_freezes_the_actor_in_the_last_episode():
     np.testing.assert_allclose(np.asarray(agents.actor.w1), before.actor.w1, atol=1e-7)
     assert not np.allclose(np.asarray(agents.critic.w1), before.critic.w1)
     # while in earlier episodes the actor did move
-    _, m0 = al.train_in_chunks(cfg, keys, al.ALHyper(cacla=hp.cacla), [3, 4],
+    _, m0 = al.train_in_chunks(cfg, keys, al.hyper(actor_lr=0.05), [3, 4],
                                lambda e, a, _: seen.setdefault(("plain", e), jax.device_get(a)))
     assert not np.allclose(seen[("plain", 4)].actor.w1, seen[("plain", 3)].actor.w1)
+
+
+# ------------------------------------------------------------------- the learner seam
+@dataclasses.dataclass(frozen=True)
+class _LinearConfig:
+    task_set: str = "paper"
+
+
+@struct.dataclass
+class _LinearHyper:
+    lr: Any = 0.1
+    sigma: Any = 0.2
+
+
+@struct.dataclass
+class _LinearState:
+    w: jax.Array
+    updates: jax.Array
+
+
+def _linear_init(key, config, hp):
+    return _LinearState(w=jnp.zeros((11, 4)), updates=jnp.zeros((), jnp.int32))
+
+
+def _linear_act(state, obs, key, hp):
+    mean = jnp.tanh(obs @ state.w)
+    return mean + hp.sigma * jax.random.normal(key, mean.shape), mean
+
+
+def _linear_update(state, tr, hp, config):
+    # pulled toward the explored action when the reward rose (CACLA's phase 1, no critic)
+    err = tr.action - jnp.tanh(tr.obs @ state.w)
+    rose = tr.reward > tr.prev_reward
+    w = jnp.where(rose, state.w + hp.lr * jnp.outer(tr.obs, err), state.w)
+    delta = tr.reward - tr.prev_reward
+    return _LinearState(w=w, updates=state.updates + rose), {"delta": delta}
+
+
+LINEAR = learners.Learner(
+    name="test_linear", config_type=_LinearConfig, hyper_type=_LinearHyper,
+    state_type=_LinearState, hyper_rules={"lr": POSITIVE, "sigma": POSITIVE},
+    init=_linear_init, act=_linear_act, update=_linear_update,
+    policy=lambda s, obs: (jnp.tanh(obs @ s.w), obs @ s.w),
+    at_episode=lambda hp, phase1, progress: hp)
+
+
+def test_another_learner_trains_and_evaluates_through_the_seam():
+    learners.register(LINEAR)
+    env_cfg = env_mod.EnvConfig(episode_length=6)
+    cfg = al.ALConfig(env=env_cfg, learner=_LinearConfig(), phase1_episodes=0,
+                      phase2_episodes=3)
+    assert cfg.learning is LINEAR
+    hp = al.validate(al.hyper(learner=LINEAR, lr=0.2))
+    assert isinstance(hp.learner, _LinearHyper) and float(hp.learner.lr) == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="sigma"):
+        al.validate(al.hyper(learner=LINEAR, sigma=-1.0))  # its own rule table
+    state, m = jax.jit(al.make_train(cfg))(jax.random.key(0), hp)
+    assert isinstance(state, _LinearState)
+    assert int(state.updates) > 0 and float(jnp.abs(state.w).sum()) > 0  # update was called
+    assert np.all(np.asarray(m["td_error"]) > 0)  # from the learner's info["delta"]
+    # evaluation finds the learner by the state's type
+    first, traj, hidden = al.make_eval(env_cfg)(state, jax.random.key(1),
+                                                env_mod.make_task("point", "left"))
+    assert hidden.shape == (6, 4) and traj.obs.shape == (6, 11)
+    np.testing.assert_allclose(np.asarray(hidden[0]), np.asarray(first.obs @ state.w),
+                               rtol=1e-5, atol=1e-6)

@@ -7,13 +7,13 @@ import jax
 import numpy as np
 import pytest
 
-from grounding_jax import al, al_experiments, an, cacla, esn, tl_data
+from grounding_jax import al, al_experiments, an, esn, tl_data
 
 
 @pytest.fixture(scope="module")
 def fixture_data():
     cfg = al.ALConfig(phase1_episodes=100, phase2_episodes=50)
-    hp = al.ALHyper(cacla=cacla.CaclaHyper(**al_experiments.TUNED))
+    hp = al.hyper(**al_experiments.TUNED)
     agent, _ = jax.jit(al.make_train(cfg))(jax.random.key(0), hp)
     tl_h, tl_acc = an.tl_hidden(jax.random.key(1), epochs=100)
     home = an.dataset(agent, tl_h, jax.random.key(2), steps=60)

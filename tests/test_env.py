@@ -95,9 +95,9 @@ def test_a_fourth_action_is_one_task_set_and_every_size_follows():
     hidden, action = cacla.actor_apply(agent.actor, st.obs)
     assert agent.actor.w1.shape[0] == 12 and action.shape == (4,)
     assert cacla.critic_apply(agent.critic, st.obs).shape == ()
-    cfg = al.ALConfig(env=env.config, cacla=c)
+    cfg = al.ALConfig(env=env.config, learner=c)
     assert cfg.actions == (0, 1, 2, 3)
-    with pytest.raises(ValueError, match="cacla.task_set"):
+    with pytest.raises(ValueError, match="learner.task_set"):
         al.ALConfig(env=env.config)  # a paper-sized learner in a four-action env
 
     e = esn.ESNConfig(task_set="test_four")

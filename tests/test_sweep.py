@@ -82,7 +82,7 @@ def test_grid_expands_to_every_combination_and_groups_by_static_fields():
     # AL hidden sizes are traced (padded to the largest): one group, built at size 7
     al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5, 7]})
     assert len(al_spec.points()) == 6 and len(al_spec.groups()) == 1
-    assert sweep._module_config(al_spec, al_spec.groups()[0][0]).cacla.critic_hidden == 7
+    assert sweep._module_config(al_spec, al_spec.groups()[0][0]).learner.critic_hidden == 7
     # one field at a time around the base (each field's first value)
     axes = _spec(TINY_AL, design="axes", grid={"critic_lr": [0.01, 0.1, 0.3], "sigma": [0.1, 0.2]})
     assert [(p["critic_lr"], p["sigma"]) for p in axes.points()] == [
