@@ -1,6 +1,7 @@
 """Input checks shared by the configs and the sweep runner: clear ValueErrors that name the
-field. Each dataclass of traced values keeps one table of :class:`Rule` s; its ``validate``
-and the sweep runner's field checks both read that table."""
+field. Each dataclass keeps one table of :class:`Rule` s -- traced values in ``HYPER_RULES`` /
+``PARAM_RULES`` (read by its ``validate``), static config fields in ``CONFIG_RULES`` (read by
+its ``__post_init__``) -- and the sweep runner's field checks read the same tables."""
 
 from __future__ import annotations
 
@@ -50,6 +51,17 @@ FINITE = Rule("a finite number", lambda v: np.ones_like(v, bool))
 def integer_at_least(n: int, text: str = "") -> Rule:
     """An integer >= ``n`` (the value may be stored as a float in a batch)."""
     return Rule(text or f"an integer >= {n}", lambda v: (v >= n) & (v == np.round(v)), int)
+
+
+def check_config(obj: Any, rules: dict[str, Rule]) -> None:
+    """ValueError naming the first static field of a config that breaks its rule (a field
+    whose rule counts needs a Python integer, not a bool or a float)."""
+    for name, rule in rules.items():
+        v = getattr(obj, name)
+        not_int = rule.type is int and (not isinstance(v, (int, np.integer))
+                                        or isinstance(v, bool))
+        if not_int or not rule.holds(v):
+            raise ValueError(f"{name}: must be {rule.text}, got {v!r}")
 
 
 def check_rules(obj: Any, rules: dict[str, Rule]) -> None:

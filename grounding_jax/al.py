@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from grounding_jax import cacla, learners, rollout, scene, tasks
-from grounding_jax._checks import FLAG, Rule, check_rules, require_int
+from grounding_jax._checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.env import (
     DEFAULT_PARAMS,
     Env,
@@ -33,6 +33,12 @@ from grounding_jax.env import (
 
 #: (phase-1 episodes, phase-2 episodes)
 SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
+
+
+#: What each count of :class:`ALConfig` accepts (its ``__post_init__`` and the sweep runner
+#: read it).
+CONFIG_RULES: dict[str, Rule] = {"phase1_episodes": integer_at_least(0),
+                                 "phase2_episodes": integer_at_least(0)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,8 +66,7 @@ class ALConfig:
     random_layout: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("phase1_episodes", "phase2_episodes"):
-            require_int(name, getattr(self, name), 0)
+        check_config(self, CONFIG_RULES)
         if self.phase1_episodes + self.phase2_episodes < 1:
             raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
         n_actions = self.env.tasks.n_actions

@@ -35,11 +35,16 @@ from grounding_jax._checks import (
     UNIT_CLOSED,
     UNIT_OPEN_LEFT,
     Rule,
+    check_config,
     check_rules,
     integer_at_least,
-    require_int,
 )
 from grounding_jax.learners import Transition
+
+#: What each size of :class:`CaclaConfig` accepts (its ``__post_init__`` and the sweep
+#: runner read it).
+CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in (
+    "actor_hidden", "critic_hidden", "max_var_repeats")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,8 +67,7 @@ class CaclaConfig:
     task_set: str = tasks.PAPER.name
 
     def __post_init__(self) -> None:
-        for name in ("actor_hidden", "critic_hidden", "max_var_repeats"):
-            require_int(name, getattr(self, name), 1)
+        check_config(self, CONFIG_RULES)
         tasks.get(self.task_set)
 
     @property

@@ -39,12 +39,18 @@ from grounding_jax._checks import (
     NON_NEGATIVE,
     POSITIVE,
     Rule,
+    check_config,
     check_rules,
     integer_at_least,
-    require_int,
 )
 
 OBS_SIZE, ACTION_SIZE = tasks.OBS_SIZE, tasks.ACTION_SIZE
+
+
+#: What each count of :class:`EnvConfig` accepts (its ``__post_init__`` and the sweep runner
+#: read it).
+CONFIG_RULES: dict[str, Rule] = {"substeps": integer_at_least(1),
+                                 "episode_length": integer_at_least(1)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,8 +72,7 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         physics.check_backend(self.backend)
-        for name in ("substeps", "episode_length"):
-            require_int(name, getattr(self, name), 1)
+        check_config(self, CONFIG_RULES)
         tasks.get(self.task_set)
 
     @property

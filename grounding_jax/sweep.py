@@ -79,23 +79,19 @@ class Field:
     choices: tuple | None = None
 
 
-def _pos(v) -> bool:
-    return v > 0
-
-
-def _int_at_least(n: int) -> tuple[str, Callable[[Any], bool]]:
-    return f"an integer >= {n}", lambda v: v >= n
-
-
 _DH, _EC = al.ALHyper(), EnvConfig()
 #: the learner AL sweeps train (its traced fields are sweep fields, read from its rule table)
 _LEARNER = cacla.LEARNER
 _LH = _LEARNER.hyper_type()
 _EP, _TH, _TC = EnvParams(), tl.TLHyper(), tl.TLConfig()
 
-def _traced(rule: Rule, default: Any) -> Field:
-    """A traced field checked by its dataclass's own rule (one table serves both)."""
-    return Field("traced", rule.type, default, rule.text, rule.holds)
+def _traced(rule: Rule, default: Any, kind: str = "traced") -> Field:
+    """A field checked by its dataclass's own rule (one table serves both)."""
+    return Field(kind, rule.type, default, rule.text, rule.holds)
+
+
+def _static(rule: Rule, default: Any) -> Field:
+    return _traced(rule, default, "static")
 
 
 def _traced_from(rules: dict[str, Rule], defaults: Any, names: Sequence[str] | None = None
@@ -119,14 +115,14 @@ _FIELDS: dict[str, dict[str, Field]] = {
         # traced: the networks are built at the sweep's largest sizes with the unused units at
         # zero weights, where they stay (cacla.init) -- one batch instead of one per size, which
         # pays because an AL step's cost hardly grows with the batch (physics call overhead)
-        "actor_hidden": Field("traced", int, 40, *_int_at_least(1)),
-        "critic_hidden": Field("traced", int, 20, *_int_at_least(1)),
+        "actor_hidden": _traced(cacla.CONFIG_RULES["actor_hidden"], 40),
+        "critic_hidden": _traced(cacla.CONFIG_RULES["critic_hidden"], 20),
         "var": Field("static", bool, False),
-        "phase1_episodes": Field("static", int, 150, *_int_at_least(0)),
-        "phase2_episodes": Field("static", int, 300, *_int_at_least(0)),
+        "phase1_episodes": _static(al.CONFIG_RULES["phase1_episodes"], 150),
+        "phase2_episodes": _static(al.CONFIG_RULES["phase2_episodes"], 300),
         "backend": Field("static", str, _EC.backend, choices=physics.BACKENDS),
-        "substeps": Field("static", int, _EC.substeps, *_int_at_least(1)),
-        "episode_length": Field("static", int, _EC.episode_length, *_int_at_least(1)),
+        "substeps": _static(env.CONFIG_RULES["substeps"], _EC.substeps),
+        "episode_length": _static(env.CONFIG_RULES["episode_length"], _EC.episode_length),
         "random_layout": Field("static", bool, True),
         **_traced_from(_LEARNER.hyper_rules, _LH, _AL_SWEPT["learner"]),
         **_traced_from(al.HYPER_RULES, _DH, _AL_SWEPT["al"]),
@@ -135,9 +131,9 @@ _FIELDS: dict[str, dict[str, Field]] = {
     "tl": {
         # the hidden size could be traced (padded + masked), but one compile per size was
         # measured faster (benchmarks/tl_throughput.py), so it is a group key
-        "hidden": Field("static", int, _TH.hidden, *_int_at_least(1)),
-        "epochs": Field("static", int, _TC.epochs, *_int_at_least(1)),
-        "eval_every": Field("static", int, _TC.eval_every, *_int_at_least(1)),
+        "hidden": _static(tl.HYPER_RULES["hidden"], _TH.hidden),
+        "epochs": _static(tl.CONFIG_RULES["epochs"], _TC.epochs),
+        "eval_every": _static(tl.CONFIG_RULES["eval_every"], _TC.eval_every),
         "noise_mode": Field("static", str, _TC.noise_mode, choices=tl.NOISE_MODES),
         **_traced_from(tl.HYPER_RULES, _TH,
                        ("lr", "replication", "noise", "image_scale", "target_scale")),

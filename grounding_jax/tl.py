@@ -28,15 +28,21 @@ from grounding_jax._checks import (
     POSITIVE,
     UNIT_CLOSED,
     Rule,
+    check_config,
     check_rules,
     integer_at_least,
-    require_int,
 )
 
 N_OUT = 3
 N_SYMBOLS = 15
 N_PIXELS = 1200
 NOISE_MODES = ("fixed", "fresh")
+
+
+#: What each count of :class:`TLConfig` accepts (its ``__post_init__`` and the sweep runner
+#: read it).
+CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in (
+    "epochs", "max_hidden", "max_replication", "eval_every")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,8 +73,7 @@ class TLConfig:
         if self.noise_mode not in NOISE_MODES:
             raise ValueError(f"noise_mode: unknown value {self.noise_mode!r}; accepted values: "
                              f"{NOISE_MODES}")
-        for name in ("epochs", "max_hidden", "max_replication", "eval_every"):
-            require_int(name, getattr(self, name), 1)
+        check_config(self, CONFIG_RULES)
         b = self.pixel_budget
         if not isinstance(b, (int, np.integer)) or isinstance(b, bool) or not 0 <= b <= N_PIXELS:
             raise ValueError(f"pixel_budget: must be an integer in 0..{N_PIXELS}, got {b!r}")

@@ -1,13 +1,12 @@
 """TL experiments of the paper: accuracy at H=50/n=20, Fig 6 (hidden size), Fig 7 (replication
 n), and the pixel-noise test. Each writes ``<name>.json`` and ``<name>.png`` under ``out``.
 
-Grid points x seeds run as ``vmap``ped, ``jit``ted calls, one compile per hidden size (see
-:func:`run_grid`).
+Grid points x seeds run through the sweep runner's groups: ``vmap``ped, ``jit``ted calls, one
+compile per hidden size (see :func:`run_grid`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 import time
 from typing import Any
@@ -32,50 +31,34 @@ PAPER = {
 BASE = {"hidden": 50, "replication": 20, **tl.TUNED}
 
 
-def run_grid(key: jax.Array, grid: list[dict[str, Any]], seeds: int, config: tl.TLConfig,
-             data: tl_data.TLData | None = None) -> dict[str, np.ndarray]:
-    """Train every grid point with ``seeds`` seeds.
-
-    Points are grouped by hidden size -- one compile per size, everything else (seeds, n,
-    learning rate, noise) ``vmap``ped and traced. ``benchmarks/tl_throughput.py`` measured
-    this faster than padding every size to the largest and running one compile.
+def run_grid(key: jax.Array, params: dict[str, Any], grid: dict[str, list], seeds: int
+             ) -> dict[str, np.ndarray]:
+    """Train every point of ``grid`` (the other fields from ``params``) with ``seeds`` seeds,
+    through the sweep runner's groups (:func:`sweep.run_group`, nothing written): one compile
+    per static group (hidden size, epochs, noise mode), the rest ``vmap``ped and traced.
 
     Args:
-        key: one PRNG key; split once into ``len(grid) * seeds`` run keys.
-        grid: hyperparameter dicts (fields of :class:`tl.TLHyper`).
-        seeds: runs per grid point.
-        config: static config (``max_hidden`` is set per group; ``max_replication`` must
-            cover the grid).
-        data: TL data (default: the cached configurations).
+        key: one PRNG key; split once into ``points * seeds`` run keys (row
+            ``point * seeds + seed``, as a sweep splits its key).
+        params: fixed fields of the TL sweep module (``sweep.FIELDS["tl"]``).
+        grid: the swept fields, each a list of values; points are every combination.
+        seeds: runs per point.
 
     Returns:
-        Metrics with leading axes ``[len(grid), seeds]``.
+        Metrics with leading axes ``[points, seeds]``.
     """
-    data = tl_data.load() if data is None else data
-    if config.pixel_budget == 0 and all(g.get("noise", 0.0) == 0 for g in grid):
-        # clean bitmaps: sparse pixel updates give the same result with less memory traffic
-        config = dataclasses.replace(config, pixel_budget=int(data.bitmaps.sum(1).max()))
-    default = tl.TLHyper()
-    rows = [{f: g.get(f, getattr(default, f)) for f in tl.HYPER_FIELDS}
-            for g in grid for _ in range(seeds)]
+    from grounding_jax import sweep
 
-    tl.validate(tl.stack_hyper(rows), dataclasses.replace(
-        config, max_hidden=max(int(r["hidden"]) for r in rows)))
-    keys = jax.random.split(key, len(rows))
-    out: dict[str, list] = {}
-    order = []
-    for h in sorted({int(r["hidden"]) for r in rows}):
-        idx = [i for i, r in enumerate(rows) if int(r["hidden"]) == h]
-        cfg = dataclasses.replace(config, max_hidden=h)
-        train = jax.jit(jax.vmap(tl.make_train(cfg, data)))
-        _, m = jax.block_until_ready(train(keys[np.asarray(idx)],
-                                           tl.stack_hyper([rows[i] for i in idx])))
-        for k, v in m.items():
-            out.setdefault(k, []).append(np.asarray(v))
-        order.extend(idx)
-    inv = np.argsort(order)
-    return {k: np.concatenate(v)[inv].reshape(len(grid), seeds, *v[0].shape[1:])
-            for k, v in out.items()}
+    spec = sweep.parse_spec({"name": "tl_experiment", "module": "tl", "seeds": seeds,
+                             "params": params, "grid": grid}, "tl_experiments.run_grid")
+    run_keys = sweep._run_keys(spec, key)
+    n = len(spec.points()) * seeds
+    out: dict[str, np.ndarray] = {}
+    for group in range(len(spec.groups())):
+        res = sweep.run_group(spec, group, run_keys, None)
+        for k, v in res["metrics"].items():
+            out.setdefault(k, np.zeros((n, *v.shape[1:]), v.dtype))[res["rows"]] = v
+    return {k: v.reshape(-1, seeds, *v.shape[1:]) for k, v in out.items()}
 
 
 def _summary(m: dict[str, np.ndarray], i: int) -> dict[str, float]:
@@ -97,16 +80,17 @@ def _summary(m: dict[str, np.ndarray], i: int) -> dict[str, float]:
 def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 600,
              noise: float = 0.0, name: str = "accuracy", noise_mode: str = "fixed") -> dict:
     """H=50, n=20 over ``seeds`` seeds (``noise`` > 0: the pixel-flip test)."""
-    cfg = tl.TLConfig(epochs=epochs, max_hidden=50, max_replication=20, noise_mode=noise_mode)
+    eval_every = tl.TLConfig().eval_every
     t = time.perf_counter()
-    m = run_grid(key, [{**BASE, "noise": noise}], seeds, cfg)
+    m = run_grid(key, {**BASE, "epochs": epochs, "noise_mode": noise_mode}, {"noise": [noise]},
+                 seeds)
     res = {**BASE, "noise": noise, "noise_mode": noise_mode,
            "epochs": epochs, "seeds": seeds,
            **_summary(m, 0), "wall_s": time.perf_counter() - t,
            "paper": PAPER["noise" if noise else "accuracy"]}
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.2))
-    ep = np.arange(1, m["test_acc"].shape[-1] + 1) * cfg.eval_every
+    ep = np.arange(1, m["test_acc"].shape[-1] + 1) * eval_every
     for key_, lab in (("train_acc", "train"), ("test_acc", "test")):
         mu, sd = m[key_][0].mean(0), m[key_][0].std(0)
         ax.plot(ep, mu, label=lab)
@@ -126,10 +110,9 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
     if field not in ("hidden", "replication"):
         raise ValueError(f"field: unknown value {field!r}; accepted values: "
                          "('hidden', 'replication')")
-    grid = [{**BASE, field: int(v)} for v in values]
-    cfg = tl.TLConfig(epochs=epochs, max_replication=max(g["replication"] for g in grid))
+    fixed = {k: v for k, v in BASE.items() if k != field}
     t = time.perf_counter()
-    m = run_grid(key, grid, seeds, cfg)
+    m = run_grid(key, {**fixed, "epochs": epochs}, {field: [int(v) for v in values]}, seeds)
     points = [{field: int(v), **_summary(m, i)} for i, v in enumerate(values)]
     res = {"field": field, "values": [int(v) for v in values], "fixed": BASE, "seeds": seeds,
            "epochs": epochs, "points": points, "wall_s": time.perf_counter() - t,

@@ -130,9 +130,9 @@ def test_localize_uses_the_trained_network(three_seeds, data):
 
 
 def test_run_grid_shapes_and_replication_matters(tmp_path):
-    cfg = tl.TLConfig(epochs=40, max_hidden=20, max_replication=20, eval_every=20)
-    m = tl_experiments.run_grid(jax.random.key(0), [{"hidden": 20, "replication": 1},
-                                                    {"hidden": 20, "replication": 20}], 2, cfg)
+    m = tl_experiments.run_grid(jax.random.key(0),
+                                {"hidden": 20, "epochs": 40, "eval_every": 20},
+                                {"replication": [1, 20]}, 2)
     assert m["final_test_acc"].shape == (2, 2)
     assert m["train_acc"].shape == (2, 2, 2)
 
