@@ -24,7 +24,7 @@ import numpy as np
 from grounding_jax import al, cacla, esn, scene, som, tl, tl_data
 from grounding_jax import tasks as tasks_lib
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
-from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, Task
+from grounding_jax.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, Task, as_env
 
 PAPER = {"train_acc": 0.99, "test_acc": 0.99}
 DEFAULT_ENV = EnvConfig()
@@ -59,18 +59,18 @@ def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
 
 
 def actor_sequences(agent: cacla.Agent, key: jax.Array, tasks: Task, steps: int,
-                    params: EnvParams = DEFAULT_PARAMS, env_config: EnvConfig = DEFAULT_ENV
+                    params: EnvParams = DEFAULT_PARAMS, env: Env | EnvConfig = DEFAULT_ENV
                     ) -> np.ndarray:
     """The greedy actor's hidden activations ``[N, steps, hidden]`` for a batch of tasks."""
-    evaluate = al.make_eval(env_config, steps)
+    evaluate = al.make_eval(env, steps)
     keys = jax.random.split(key, tasks.action.shape[0])
     run = jax.jit(jax.vmap(lambda k, t: evaluate(agent, k, t, params)[2]))
     return np.asarray(run(keys, tasks))
 
 
 def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 100,
-            start_noise: float = 0.0, env_config: EnvConfig = DEFAULT_ENV) -> dict:
-    """All sequences: 216 configurations x the actions of ``env_config``'s task set (648 for
+            start_noise: float = 0.0, env: Env | EnvConfig = DEFAULT_ENV) -> dict:
+    """All sequences: 216 configurations x the actions of ``env``'s task set (648 for
     the paper's 3).
 
     Returns:
@@ -78,13 +78,14 @@ def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 1
         ``position``, ``config`` [648] (configuration index 0..215).
     """
     data = tl_data.load()
-    n_actions = env_config.tasks.n_actions
+    env = as_env(env)
+    n_actions = env.tasks.n_actions
     config = np.repeat(np.arange(tl_data.N_CONFIGS), n_actions)
     action = np.tile(np.arange(n_actions), tl_data.N_CONFIGS)
     tasks = Task(action=jnp.asarray(action, jnp.int32),
                  position=jnp.asarray(data.labels[config], jnp.int32),
                  layout=jnp.asarray(data.layout[config], jnp.int32))
-    h = actor_sequences(agent, key, tasks, steps, EnvParams(start_noise=start_noise), env_config)
+    h = actor_sequences(agent, key, tasks, steps, EnvParams(start_noise=start_noise), env)
     tl_part = np.broadcast_to(tl_h[config][:, None], (len(config), steps, tl_h.shape[1]))
     return {"inputs": np.concatenate([h, tl_part], axis=2).astype(np.float32),
             "actor_hidden": h, "action": action, "word": data.word[config],
@@ -244,8 +245,9 @@ def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, ste
     out = pathlib.Path(out)
     k_tl, k_home, k_rand, k_esn, k_som = jax.random.split(key, 5)
     tl_params, tl_hyper, tl_h, tl_acc = train_tl(k_tl, tl_epochs)
-    home = dataset(agent, tl_h, k_home, steps, 0.0, env_config)
-    rand = dataset(agent, tl_h, k_rand, steps, start_noise, env_config)
+    env = Env(env_config)  # both data sets share it
+    home = dataset(agent, tl_h, k_home, steps, 0.0, env)
+    rand = dataset(agent, tl_h, k_rand, steps, start_noise, env)
     runs = [train_namer(k, home, rand, config=esn_config)
             for k in jax.random.split(k_esn, seeds)]
     res = {"seeds": seeds, "steps": steps, "tl_test_acc": tl_acc, "paper": PAPER}

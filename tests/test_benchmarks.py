@@ -1,0 +1,52 @@
+"""The throughput benchmarks run end to end at a tiny batch on the CPU, so the GPU commands in
+the README (e.g. ``benchmarks/env_throughput.py --backends mjx --batches 1024 8192 32768``) are
+ready to run. They only measure; nothing here times anything."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pathlib
+import subprocess
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+
+
+def _run(script: str, args: list[str], tmp_path: pathlib.Path) -> dict:
+    out = tmp_path / f"{script}.json"
+    env = {**os.environ, "GROUNDING_JAX_CACHE": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / f"{script}.py"), *args,
+                           "--out", str(out)], capture_output=True, text=True, env=env,
+                          timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(out.read_text())
+
+
+def _rate(v) -> bool:
+    return isinstance(v, float) and math.isfinite(v) and v > 0
+
+
+def test_env_throughput_runs_both_backends_at_a_tiny_batch(tmp_path):
+    res = _run("env_throughput", ["--batches", "2", "--backends", "mujoco", "mjx",
+                                  "--steps", "2", "--mjx-steps", "1", "--repeats", "1"],
+               tmp_path)
+    rows = {r["backend"]: r for r in res["rows"]}
+    assert set(rows) == {"mujoco", "mjx"}
+    for r in rows.values():
+        assert r["batch"] == 2
+        for k in ("rl_steps_per_s", "physics_steps_per_s", "compile_cold_s", "compile_warm_s"):
+            assert _rate(r[k]), (r["backend"], k, r[k])
+        assert r["physics_steps_per_s"] == r["rl_steps_per_s"] * res["meta"]["substeps"]
+    assert _rate(rows["mujoco"]["rollout_alone_physics_steps_per_s"])
+
+
+def test_al_throughput_runs_at_a_tiny_batch(tmp_path):
+    res = _run("al_throughput", ["--batches", "2", "--episodes", "1", "--ref-agents", "1",
+                                 "--mjx-batch", "0"], tmp_path)
+    assert _rate(res["reference"]["rl_steps_per_s"])
+    (row,) = res["rows"]
+    assert (row["backend"], row["batch"]) == ("mujoco", 2)
+    for k in ("rl_steps_per_s", "ceiling_rl_steps_per_s", "over_reference", "of_ceiling"):
+        assert _rate(row[k]), (k, row[k])
