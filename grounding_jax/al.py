@@ -133,16 +133,15 @@ def hyper(learner: learners.Learner | None = None, **fields: Any) -> ALHyper:
         ValueError: a name that none of the three has (naming it and the accepted ones).
     """
     learner = learner or cacla.LEARNER
-    parts: dict[str, dict[str, Any]] = {"learner": {}, "env": {}, "al": {}}
-    owners = (("learner", learner.hyper_type), ("env", EnvParams), ("al", ALHyper))
+    owners = {"learner": learner.hyper_type, "env": EnvParams, "al": ALHyper}
+    # the fields each owner takes by name (ALHyper's parts are not flat fields)
+    names = {o: set(t.__dataclass_fields__) - {"learner", "env"} for o, t in owners.items()}
+    parts: dict[str, dict[str, Any]] = {o: {} for o in owners}
     for name, value in fields.items():
-        owner = next((o for o, t in owners if name in t.__dataclass_fields__
-                      and name not in ("learner", "env")), None)
+        owner = next((o for o, ns in names.items() if name in ns), None)
         if owner is None:
-            accepted = sorted({f for _, t in owners for f in t.__dataclass_fields__}
-                              - {"learner", "env"})
             raise ValueError(f"{name}: not a field of the learner, the env or the trainer; "
-                             f"accepted fields: {accepted}")
+                             f"accepted fields: {sorted(set().union(*names.values()))}")
         parts[owner][name] = value
     return ALHyper(learner=learner.hyper_type(**parts["learner"]),
                    env=EnvParams(**parts["env"]), **parts["al"])
@@ -154,6 +153,17 @@ def validate(hp: ALHyper) -> ALHyper:
     hp.env.validate()
     check_rules(hp, HYPER_RULES)
     return hp
+
+
+def _check_learner(config: ALConfig, hp: ALHyper) -> learners.Learner:
+    """The config's learner; ValueError if ``hp.learner`` is another learner's (at trace
+    time, before anything runs)."""
+    lrn = config.learning
+    if not isinstance(hp.learner, lrn.hyper_type):
+        raise ValueError(f"learner: hyperparameters {type(hp.learner).__name__} do not belong "
+                         f"to the config's learner {lrn.name!r} (accepted: "
+                         f"{lrn.hyper_type.__name__})")
+    return lrn
 
 
 def executed_action(q: jax.Array, ctrl: jax.Array, action_scale) -> jax.Array:
@@ -195,7 +205,8 @@ def make_episodes(config: ALConfig):
                                executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
                                                hp.env.action_scale), a)
             tr = learners.Transition(obs=state.obs, action=target, reward=nxt.reward,
-                                  next_obs=nxt.obs, done=nxt.done, prev_reward=state.reward)
+                                     next_obs=nxt.obs, done=nxt.done,
+                                     prev_reward=state.reward)
             new, info = lrn.update(agent, tr, lhp, config.learner)
             live = ~state.done  # steps after the episode ended change nothing
             agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
@@ -220,6 +231,7 @@ def make_episodes(config: ALConfig):
         return agent, metrics
 
     def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
+        _check_learner(config, hp)
         return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, plan))
 
     return run
@@ -233,9 +245,8 @@ def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
     e = jnp.arange(config.episodes)
     plan = {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
             "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
-    lrn = config.learning
-    learner_hp = lrn.hyper_type() if hp is None else hp.learner
-    agent = lrn.init(k_init, config.learner, learner_hp)
+    hp = ALHyper(learner=config.learning.hyper_type()) if hp is None else hp
+    agent = _check_learner(config, hp).init(k_init, config.learner, hp.learner)
     return agent, jax.random.split(k_eps, config.episodes), plan
 
 

@@ -210,6 +210,8 @@ def test_another_learner_trains_and_evaluates_through_the_seam():
     assert isinstance(hp.learner, _LinearHyper) and float(hp.learner.lr) == pytest.approx(0.2)
     with pytest.raises(ValueError, match="sigma"):
         al.validate(al.hyper(learner=LINEAR, sigma=-1.0))  # its own rule table
+    with pytest.raises(ValueError, match="learner: hyperparameters CaclaHyper"):
+        al.make_train(cfg)(jax.random.key(0), al.ALHyper())  # another learner's
     state, m = jax.jit(al.make_train(cfg))(jax.random.key(0), hp)
     assert isinstance(state, _LinearState)
     assert int(state.updates) > 0 and float(jnp.abs(state.w).sum()) > 0  # update was called
