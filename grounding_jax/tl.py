@@ -9,7 +9,8 @@ sizes (``TLConfig.max_hidden``, ``TLConfig.max_replication``) and masked -- mask
 output 0 and masked input replicas are 0, so neither takes part in the forward pass or gets a
 gradient, and the result equals that of the unpadded network (tested). For sweeps over the
 hidden size, one compile per size turned out faster than padding everything to the largest
-(``benchmarks/tl_throughput.py``), so :func:`tl_experiments.run_grid` groups by hidden size;
+(``benchmarks/tl_throughput.py``), so the sweep runner (and :func:`tl_experiments.run_grid`,
+which runs through it) groups by hidden size;
 ``n`` stays traced (its cost is negligible, see :func:`make_train`).
 """
 
