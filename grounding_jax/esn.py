@@ -16,9 +16,13 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import tasks
-from grounding_jax._checks import require_int
+from grounding_jax._checks import Rule, check_config, integer_at_least
 
 N_ACTIONS, N_WORDS = tasks.N_ACTIONS, tasks.N_WORDS  # the paper's task set
+
+
+#: What each size of :class:`ESNConfig` accepts (its ``__post_init__`` reads it).
+CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in ("n_in", "n_res", "n_out")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,8 +53,7 @@ class ESNConfig:
         elif self.n_out != size:
             raise ValueError(f"n_out: must be {size} (the action and target words of task set "
                              f"{self.task_set!r}) or None, got {self.n_out!r}")
-        for name in ("n_in", "n_res", "n_out"):
-            require_int(name, getattr(self, name), 1)
+        check_config(self, CONFIG_RULES)
         if not np.isfinite(self.spectral_radius) or self.spectral_radius <= 0:
             raise ValueError(f"spectral_radius: must be > 0, got {self.spectral_radius!r}")
         if not 0 < self.connectivity <= 1:

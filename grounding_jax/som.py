@@ -12,7 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax._checks import require_int
+from grounding_jax._checks import Rule, check_config, integer_at_least
+
+#: What each count of :class:`SOMConfig` accepts (its ``__post_init__`` reads it).
+CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in ("rows", "cols", "epochs")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,8 +31,7 @@ class SOMConfig:
     sigma_end: float = 0.7
 
     def __post_init__(self) -> None:
-        for name in ("rows", "cols", "epochs"):
-            require_int(name, getattr(self, name), 1)
+        check_config(self, CONFIG_RULES)
         if not 0 < self.sigma_end <= self.sigma_start:
             raise ValueError(f"sigma_start/sigma_end: need 0 < sigma_end <= sigma_start, got "
                              f"{self.sigma_start!r}, {self.sigma_end!r}")

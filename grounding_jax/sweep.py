@@ -85,13 +85,18 @@ _LEARNER = cacla.LEARNER
 _LH = _LEARNER.hyper_type()
 _EP, _TH, _TC = EnvParams(), tl.TLHyper(), tl.TLConfig()
 
-def _traced(rule: Rule, default: Any, kind: str = "traced") -> Field:
+
+def _ruled(kind: str, rule: Rule, default: Any) -> Field:
     """A field checked by its dataclass's own rule (one table serves both)."""
     return Field(kind, rule.type, default, rule.text, rule.holds)
 
 
+def _traced(rule: Rule, default: Any) -> Field:
+    return _ruled("traced", rule, default)
+
+
 def _static(rule: Rule, default: Any) -> Field:
-    return _traced(rule, default, "static")
+    return _ruled("static", rule, default)
 
 
 def _traced_from(rules: dict[str, Rule], defaults: Any, names: Sequence[str] | None = None
@@ -379,8 +384,8 @@ def _al_config(pts: list[dict], static: dict[str, Any]) -> al.ALConfig:
         env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
                       episode_length=static["episode_length"]),
         learner=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
-                                critic_hidden=max(p["critic_hidden"] for p in pts),
-                                var=static["var"]),
+                                  critic_hidden=max(p["critic_hidden"] for p in pts),
+                                  var=static["var"]),
         phase1_episodes=static["phase1_episodes"],
         phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"])
 
