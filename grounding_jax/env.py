@@ -305,6 +305,29 @@ class Env:
         Returns:
             The initial :class:`State` (reward is that of the start pose).
         """
+        return self._reset(key, task, params)
+
+    def reset_where(self, when: jax.Array, state: State, key: jax.Array, task: Task,
+                    params: EnvParams = DEFAULT_PARAMS) -> State:
+        """Auto-reset: ``reset(key, task, params)`` where ``when``, ``state`` elsewhere.
+
+        Under ``vmap`` ``when`` is per scene, and the C backend runs the reset's physics only
+        for the scenes where it holds, so a batch can restart finished episodes at any step
+        at little cost (as Brax's and PureJaxRL's auto-reset do).
+
+        Args:
+            when: bool scalar: start a new episode.
+            state: the current state (kept where ``when`` is false).
+            key, task, params: as for :meth:`reset`.
+
+        Returns:
+            The new or the unchanged :class:`State`.
+        """
+        fresh = self._reset(key, task, params, live=when)
+        return jax.tree.map(lambda n, o: jnp.where(when, n, o), fresh, state)
+
+    def _reset(self, key: jax.Array, task: Task, params: EnvParams,
+               live: jax.Array | None = None) -> State:
         _check_task(task, self.tasks.n_actions)
         params.validate()
         noise = jax.random.uniform(key, (4,), jnp.float32, -1.0, 1.0) * params.start_noise
@@ -313,7 +336,7 @@ class Env:
         qpos = self._qpos_home.at[self._idx.arm_qpos].set(q_arm)
         qpos = qpos.at[self._idx.object_qpos].set(self._place(task.layout))
         qvel = jnp.zeros(self._idx.nv, jnp.float32)
-        sensordata = self._physics_forward(qpos, qvel)
+        sensordata = self._physics_forward(qpos, qvel, live)
         object_start = self._objects(qpos)
         obs, reward, terms = self._evaluate(qpos, sensordata, task, object_start, params)
         metrics = {**terms, "nan_actions": jnp.zeros((), jnp.float32)}
