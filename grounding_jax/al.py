@@ -1,8 +1,12 @@
-"""Action learner (AL) training: learners acting in the env, the whole loop under lax.scan.
+"""Action learner (AL) training: learners acting in the env, the whole loop compiled.
 
 ``make_train(config) -> train(key, hp) -> (agent, metrics)``; ``vmap`` ``train`` over keys and
 hyperparameters for a batch of agents (on the C MuJoCo backend the batch's physics goes to
-``mujoco.rollout`` in one call per step). The trainer drives any
+``mujoco.rollout`` in one call per step). By default each agent steps through its episodes
+with auto-reset (:func:`make_steps`: a finished episode's slot starts the agent's next episode
+at the next step); the lockstep loop (:func:`make_episodes`: episodes side by side, each
+``episode_length`` steps long) gives the same result, bit for bit, more slowly. An agent
+trains bit for bit the same alone or in any batch. The trainer drives any
 :class:`~grounding_jax.learners.Learner` through its ``init``/``act``/``update``; the learner
 is the one whose config ``ALConfig.learner`` holds (CACLA, the paper's, by default). The
 paper's schedule (150 phase-1 + 300 phase-2 episodes) and the no-tricks schedule (plain CACLA
@@ -172,67 +176,168 @@ def executed_action(q: jax.Array, ctrl: jax.Array, action_scale) -> jax.Array:
     return jnp.clip((scale_joints(ctrl) - scale_joints(q)) / action_scale, -1.0, 1.0)
 
 
+#: The trainer's loops (:func:`make_episodes` and :func:`make_steps`).
+LOOPS = ("auto_reset", "lockstep")
+
+
+def _check_loop(loop: str) -> str:
+    if loop not in LOOPS:
+        raise ValueError(f"loop: unknown value {loop!r}; accepted values: {LOOPS}")
+    return loop
+
+
+def _ordered_sum(x: jax.Array) -> jax.Array:
+    """The sum of ``x`` [n], added in index order: the same bits alone and batched (a
+    ``jnp.sum``'s order depends on the batch's shape)."""
+    acc = x[0]
+    for i in range(1, x.shape[0]):
+        acc = acc + x[i]
+    return acc
+
+
+class _Parts:
+    """What both loops share: the episode's draw, one learning step, the episode's metrics."""
+
+    def __init__(self, config: ALConfig) -> None:
+        self.config = config
+        self.env = Env(config.env)
+        self.lrn = config.learning
+        self.length = config.env.episode_length
+        self._actions = jnp.asarray(config.actions, jnp.int32)
+        self._positions = jnp.asarray(config.positions, jnp.int32)
+        self._n_layouts = len(scene.LAYOUTS) if config.random_layout else 1
+
+    def draw(self, key: jax.Array) -> tuple[Task, jax.Array, jax.Array]:
+        """An episode's key -> (task, reset key, one exploration key per step)."""
+        k_task, k_reset, k_steps = jax.random.split(key, 3)
+        ka, kp, kl = jax.random.split(k_task, 3)
+        task = Task(action=jax.random.choice(ka, self._actions),
+                    position=jax.random.choice(kp, self._positions),
+                    layout=jax.random.randint(kl, (), 0, self._n_layouts, jnp.int32))
+        return task, k_reset, jax.random.split(k_steps, self.length)
+
+    def learn(self, agent, state, k: jax.Array, lhp, hp: ALHyper):
+        """Act, step the env, update the learner (not where the episode has ended).
+
+        Returns:
+            (agent, next state, this step's record: reward, live, touched, delta²).
+        """
+        env, lrn = self.env, self.lrn
+        a, _ = lrn.act(agent, state.obs, k, lhp)
+        nxt = env.step(state, a, hp.env)
+        target = jnp.where(hp.executed_target > 0.5,
+                           executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
+                                           hp.env.action_scale), a)
+        tr = learners.Transition(obs=state.obs, action=target, reward=nxt.reward,
+                                 next_obs=nxt.obs, done=nxt.done, prev_reward=state.reward)
+        new, info = lrn.update(agent, tr, lhp, self.config.learner)
+        live = ~state.done  # steps after the episode ended change nothing
+        agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
+        record = {"reward": jnp.where(live, nxt.reward, 0.0), "live": live,
+                  "touched": nxt.metrics["touched_target"],
+                  "delta_sq": jnp.where(live, info["delta"] ** 2, 0.0)}
+        return agent, nxt, record
+
+    def metrics(self, last, task: Task, record: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """The episode's metrics from its last state and its steps' records ``[length]``."""
+        live = record["live"]
+        steps = jnp.sum(live)
+        late = (jnp.arange(self.length) >= steps - 10) & live
+        return {
+            "return": _ordered_sum(record["reward"]), "final_reward": last.reward,
+            "td_error": jnp.sqrt(_ordered_sum(record["delta_sq"]) / jnp.maximum(steps, 1)),
+            "final_point_l1": last.metrics["point_l1"],
+            "final_palm_target_dist": last.metrics["palm_target_dist"],
+            "touched_target_late": jnp.any((record["touched"] > 0) & late).astype(jnp.float32),
+            "wrong_moved": (last.wrong_since >= 0).astype(jnp.float32),
+            "target_moved": last.metrics["target_moved"],
+            "steps": steps, "action": task.action, "position": task.position,
+        }
+
+
 def make_episodes(config: ALConfig):
     """Build ``run(agent, keys, plan, hp) -> (agent, metrics)``: one episode per key, in
-    order, under ``lax.scan``. ``plan`` (from :func:`schedule`) holds per-episode arrays:
+    order, under ``lax.scan`` -- the lockstep loop: every episode runs ``episode_length`` steps,
+    those after its end masked (batched, a finished episode's slot idles until the longest
+    episode of the batch is done). ``plan`` (from :func:`schedule`) holds per-episode arrays:
     ``phase1`` (1.0 where the phase-1 rule applies) and ``progress`` (0 -> 1 over the run).
 
     Training in chunks of episodes (a host loop with progress and checkpoints) calls this on
     consecutive slices of the keys; the result equals one :func:`make_train` call.
     """
-    env = Env(config.env)
-    lrn = config.learning
-    actions = jnp.asarray(config.actions, jnp.int32)
-    positions = jnp.asarray(config.positions, jnp.int32)
-    n_layouts = len(scene.LAYOUTS) if config.random_layout else 1
-    length = config.env.episode_length
+    parts = _Parts(config)
+    env, lrn = parts.env, parts.lrn
 
     def episode(agent, xs, hp: ALHyper):
         key, plan = xs
-        k_task, k_reset, k_steps = jax.random.split(key, 3)
-        ka, kp, kl = jax.random.split(k_task, 3)
-        task = Task(action=jax.random.choice(ka, actions),
-                    position=jax.random.choice(kp, positions),
-                    layout=jax.random.randint(kl, (), 0, n_layouts, jnp.int32))
+        task, k_reset, step_keys = parts.draw(key)
         lhp = lrn.at_episode(hp.learner, plan["phase1"], plan["progress"])
         state = env.reset(k_reset, task, hp.env)
 
         def step(carry, k):
             agent, state = carry
-            a, _ = lrn.act(agent, state.obs, k, lhp)
-            nxt = env.step(state, a, hp.env)
-            target = jnp.where(hp.executed_target > 0.5,
-                               executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
-                                               hp.env.action_scale), a)
-            tr = learners.Transition(obs=state.obs, action=target, reward=nxt.reward,
-                                     next_obs=nxt.obs, done=nxt.done,
-                                     prev_reward=state.reward)
-            new, info = lrn.update(agent, tr, lhp, config.learner)
-            live = ~state.done  # steps after the episode ended change nothing
-            agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
-            out = (jnp.where(live, nxt.reward, 0.0), live, nxt.metrics["touched_target"],
-                   jnp.where(live, info["delta"] ** 2, 0.0))
-            return (agent, nxt), out
+            agent, nxt, record = parts.learn(agent, state, k, lhp, hp)
+            return (agent, nxt), record
 
-        (agent, last), (rewards, live, touched, delta_sq) = jax.lax.scan(
-            step, (agent, state), jax.random.split(k_steps, length))
-        steps = jnp.sum(live)
-        late = (jnp.arange(length) >= steps - 10) & live
-        metrics = {
-            "return": jnp.sum(rewards), "final_reward": last.reward,
-            "td_error": jnp.sqrt(jnp.sum(delta_sq) / jnp.maximum(steps, 1)),
-            "final_point_l1": last.metrics["point_l1"],
-            "final_palm_target_dist": last.metrics["palm_target_dist"],
-            "touched_target_late": jnp.any((touched > 0) & late).astype(jnp.float32),
-            "wrong_moved": (last.wrong_since >= 0).astype(jnp.float32),
-            "target_moved": last.metrics["target_moved"],
-            "steps": steps, "action": task.action, "position": task.position,
-        }
-        return agent, metrics
+        (agent, last), record = jax.lax.scan(step, (agent, state), step_keys)
+        return agent, parts.metrics(last, task, record)
 
     def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
         _check_learner(config, hp)
         return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, plan))
+
+    return run
+
+
+def make_steps(config: ALConfig):
+    """Build ``run(agent, keys, plan, hp) -> (agent, metrics)`` like :func:`make_episodes`,
+    step by step with auto-reset: a ``lax.while_loop`` over RL steps in which an episode that
+    ends is followed, at the next step, by the agent's next episode.
+
+    Batched with ``vmap``, each agent runs its own episodes at its own pace (its own episode
+    counter picks its phase and decays), so every physics call carries every agent that still
+    has episodes to run. The result is the same as :func:`make_episodes`' -- the same draws,
+    the same exploration keys, the same steps -- only the idle steps are gone.
+    """
+    parts = _Parts(config)
+    env, lrn, length = parts.env, parts.lrn, parts.length
+
+    def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
+        _check_learner(config, hp)
+        n = keys.shape[0]
+        tasks_, k_resets, step_keys = jax.vmap(parts.draw)(keys)
+
+        def task_at(e):
+            return jax.tree.map(lambda x: x[e], tasks_)
+
+        # every reset of the chunk at once (one batched physics call; resets do not depend
+        # on earlier episodes), so the loop restarts an episode by picking its first state
+        firsts = jax.vmap(env.reset, in_axes=(0, 0, None))(k_resets, tasks_, hp.env)
+        state = jax.tree.map(lambda x: x[0], firsts)
+        lhp0 = lrn.at_episode(hp.learner, plan["phase1"][0], plan["progress"][0])
+        _, nxt, record = jax.eval_shape(parts.learn, agent, state, step_keys[0, 0], lhp0, hp)
+        blank = jax.tree.map(lambda x: jnp.zeros((length,) + x.shape, x.dtype), record)
+        out = jax.tree.map(lambda x: jnp.zeros((n,) + x.shape, x.dtype),
+                           jax.eval_shape(parts.metrics, nxt, task_at(0), blank))
+
+        def body(carry):
+            agent, state, e, records, out = carry
+            t = state.step
+            lhp = lrn.at_episode(hp.learner, plan["phase1"][e], plan["progress"][e])
+            agent, nxt, record = parts.learn(agent, state, step_keys[e, t], lhp, hp)
+            records = jax.tree.map(lambda b, v: b.at[t].set(v), records, record)
+            ended = nxt.done
+            m = parts.metrics(nxt, task_at(e), records)
+            out = jax.tree.map(lambda o, v: o.at[e].set(jnp.where(ended, v, o[e])), out, m)
+            e_next = e + ended.astype(e.dtype)
+            first = jax.tree.map(lambda x: x[jnp.minimum(e_next, n - 1)], firsts)
+            state = jax.tree.map(lambda f, x: jnp.where(ended & (e_next < n), f, x), first, nxt)
+            records = jax.tree.map(lambda b, z: jnp.where(ended, z, b), records, blank)
+            return agent, state, e_next, records, out
+
+        carry = (agent, state, jnp.zeros((), jnp.int32), blank, out)
+        agent, _, _, _, out = jax.lax.while_loop(lambda c: c[2] < n, body, carry)
+        return agent, out
 
     return run
 
@@ -250,11 +355,20 @@ def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
     return agent, jax.random.split(k_eps, config.episodes), plan
 
 
-def make_train(config: ALConfig):
+def _loop_maker(loop: str):
+    return make_steps if _check_loop(loop) == "auto_reset" else make_episodes
+
+
+def make_train(config: ALConfig, loop: str = "auto_reset"):
     """Build ``train(key, hp) -> (agent, metrics)`` for one agent (vmap it for a batch).
 
     The key is split once into the agent's initial weights and one key per episode (task draw,
     reset, exploration noise).
+
+    Args:
+        config: static config.
+        loop: ``"auto_reset"`` (:func:`make_steps`, the default) or ``"lockstep"``
+            (:func:`make_episodes`); both give the same agent and metrics, bit for bit.
 
     Returns:
         ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
@@ -263,7 +377,7 @@ def make_train(config: ALConfig):
         ``touched_target_late`` (touched the target in one of the last 10 steps),
         ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
     """
-    run = make_episodes(config)
+    run = _loop_maker(loop)(config)
 
     def train(key: jax.Array, hp: ALHyper) -> tuple[Any, dict[str, jax.Array]]:
         agent, keys, plan = schedule(key, config, hp)
@@ -273,17 +387,18 @@ def make_train(config: ALConfig):
 
 
 @functools.lru_cache(maxsize=16)
-def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef):
-    """``jit(vmap(make_episodes(config)))``, kept per static config and batched-hp layout: a
-    later batch with the same config and shapes (another sweep, another chunk) reuses the
-    compiled code instead of compiling it again (host-callback code is not in JAX's persistent
-    cache)."""
+def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef, loop: str = "auto_reset"):
+    """``jit(vmap(...))`` of the loop's runner, kept per static config, loop and batched-hp
+    layout: a later batch with the same config and shapes (another sweep, another chunk)
+    reuses the compiled code instead of compiling it again (host-callback code is not in
+    JAX's persistent cache)."""
     axes = jax.tree.unflatten(hp_treedef, hp_axes)
-    return jax.jit(jax.vmap(make_episodes(config), in_axes=(0, 0, None, axes)))
+    return jax.jit(jax.vmap(_loop_maker(loop)(config), in_axes=(0, 0, None, axes)))
 
 
 def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
-                    on_stop=None, start: tuple | None = None, sharding=None):
+                    on_stop=None, start: tuple | None = None, sharding=None,
+                    loop: str = "auto_reset"):
     """Train a batch of agents (``keys`` [agents], ``hp`` batched or shared) in a host loop
     over chunks of episodes ending at each of ``stops`` (the last must be
     ``config.episodes``).
@@ -300,16 +415,18 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
             ``episode`` (the result is bit-identical to an uninterrupted run).
         sharding: a ``jax.sharding.Sharding`` of the agent axis (e.g. over local devices);
             None keeps the default device.
+        loop: ``"auto_reset"`` (default) or ``"lockstep"``, as in :func:`make_train`.
 
     Returns:
         (agents, metrics [agents, episodes]) -- equal to ``vmap(make_train(config))``.
     """
+    _check_loop(loop)
     if not stops or sorted(stops) != list(stops) or stops[-1] != config.episodes or stops[0] < 1:
         raise ValueError(f"stops: must be increasing, >= 1 and end at {config.episodes}, "
                          f"got {stops!r}")
     axes, treedef = jax.tree.flatten(jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp),
                                      is_leaf=lambda x: x is None)
-    run = _batched_episodes(config, tuple(axes), treedef)
+    run = _batched_episodes(config, tuple(axes), treedef, loop)
     hp_tree = jax.tree.unflatten(treedef, axes)
     agents, ep_keys, plan = jax.vmap(lambda k, h: schedule(k, config, h),
                                      in_axes=(0, hp_tree))(keys, hp)

@@ -212,10 +212,23 @@ def at_episode(hp: CaclaHyper, phase1: jax.Array, progress: jax.Array) -> CaclaH
                       sigma=hp.sigma * hp.sigma_decay ** x)
 
 
+def _matvec(x: jax.Array, w: jax.Array) -> jax.Array:
+    """``x @ w``, its terms added one by one in input order.
+
+    A ``dot`` (or a ``sum``) is lowered to different kernels for one agent and for a batch
+    under ``vmap``, and they add in different orders; chained elementwise additions round the
+    same way in both, so an agent trains bit for bit the same alone or in any batch.
+    """
+    acc = x[0] * w[0]
+    for i in range(1, x.shape[0]):
+        acc = acc + x[i] * w[i]
+    return acc
+
+
 def actor_apply(actor: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Actor forward pass: (hidden activations [H], action [4] in (-1, 1))."""
-    h = jnp.tanh(obs @ actor.w1 + actor.b1)
-    return h, jnp.tanh(h @ actor.w2 + actor.b2)
+    h = jnp.tanh(_matvec(obs, actor.w1) + actor.b1)
+    return h, jnp.tanh(_matvec(h, actor.w2) + actor.b2)
 
 
 def policy(agent: Agent, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -226,8 +239,28 @@ def policy(agent: Agent, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 def critic_apply(critic: MLP, obs: jax.Array) -> jax.Array:
     """Critic forward pass: the value, a scalar."""
-    h = jnp.tanh(obs @ critic.w1 + critic.b1)
-    return (h @ critic.w2 + critic.b2)[0]
+    return _critic(critic, obs)[1]
+
+
+def _critic(critic: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    h = jnp.tanh(_matvec(obs, critic.w1) + critic.b1)
+    return h, (_matvec(h, critic.w2) + critic.b2)[0]
+
+
+def _critic_grad(critic: MLP, obs: jax.Array, h: jax.Array) -> MLP:
+    """dV/dtheta at ``obs`` (``h``: the hidden activations there), written out (see
+    :func:`_matvec` for why not ``jax.grad``)."""
+    dz = critic.w2[:, 0] * (1.0 - h * h)
+    return MLP(w1=obs[:, None] * dz[None, :], b1=dz, w2=h[:, None],
+               b2=jnp.ones_like(critic.b2))
+
+
+def _actor_grad(actor: MLP, obs: jax.Array, h: jax.Array, mean: jax.Array,
+                err: jax.Array) -> MLP:
+    """d(a(obs) . err)/dtheta, written out like :func:`_critic_grad`."""
+    dz2 = err * (1.0 - mean * mean)
+    dz1 = _matvec(dz2, actor.w2.T) * (1.0 - h * h)
+    return MLP(w1=obs[:, None] * dz1[None, :], b1=dz1, w2=h[:, None] * dz2[None, :], b2=dz2)
 
 
 def act(agent: Agent, obs: jax.Array, key: jax.Array, hp: CaclaHyper
@@ -254,7 +287,8 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
     Returns:
         (new agent, info with ``delta``, ``actor_updated`` (0/1) and ``value``).
     """
-    v, dv = jax.value_and_grad(critic_apply)(agent.critic, tr.obs)
+    h, v = _critic(agent.critic, tr.obs)
+    dv = _critic_grad(agent.critic, tr.obs, h)
     v_next = critic_apply(agent.critic, tr.next_obs)
     target = tr.reward + hp.gamma * (1.0 - tr.done.astype(jnp.float32)) * v_next
     delta = jax.lax.stop_gradient(target - v)
@@ -263,10 +297,9 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
     improved = jnp.where(hp.phase1 > 0.5, tr.reward > tr.prev_reward, delta > 0)
 
     def pull(actor: MLP) -> MLP:  # one step of the actor toward the explored action
-        _, mean = actor_apply(actor, tr.obs)
-        err = jax.lax.stop_gradient(tr.action - mean)
-        g = jax.grad(lambda a: jnp.dot(actor_apply(a, tr.obs)[1], err))(actor)
-        return _step(actor, g, hp.actor_lr)
+        h, mean = actor_apply(actor, tr.obs)
+        return _step(actor, _actor_grad(actor, tr.obs, h, mean, tr.action - mean),
+                     hp.actor_lr)
 
     var_delta = agent.var_delta
     if config.var:

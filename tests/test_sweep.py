@@ -95,10 +95,10 @@ def test_grid_expands_to_every_combination_and_groups_by_static_fields():
 def trace_counter(monkeypatch):
     """Counts how often each module's training function is traced (= compiled)."""
     counts = {"al": 0, "tl": 0}
-    make_episodes, make_train = al.make_episodes, tl.make_train
+    make_steps, make_train = al.make_steps, tl.make_train
 
-    def counted_episodes(config):
-        run = make_episodes(config)
+    def counted_steps(config):
+        run = make_steps(config)
 
         def traced(*args):
             counts["al"] += 1
@@ -115,7 +115,7 @@ def trace_counter(monkeypatch):
 
         return traced
 
-    monkeypatch.setattr(al, "make_episodes", counted_episodes)
+    monkeypatch.setattr(al, "make_steps", counted_steps)
     monkeypatch.setattr(tl, "make_train", counted_train)
     al._batched_episodes.cache_clear()  # compiled runners of earlier tests would hide traces
     yield counts
