@@ -39,6 +39,22 @@ def test_actor_and_critic_gradients_match_finite_differences(agent):
     _fd_check(lambda c: cacla.critic_apply(c, obs), agent.critic)
 
 
+def test_written_out_gradients_equal_autodiff(agent):
+    # update() uses hand-written gradients (fixed-order sums, batch-invariant); they must be
+    # the networks' true gradients
+    obs, err = _obs(3), jnp.array([0.3, -0.7, 0.2, 0.5])
+    h, v = cacla._critic(agent.critic, obs)
+    auto = jax.grad(cacla.critic_apply)(agent.critic, obs)
+    for a, b in zip(jax.tree.leaves(cacla._critic_grad(agent.critic, obs, h)),
+                    jax.tree.leaves(auto), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
+    h, mean = cacla.actor_apply(agent.actor, obs)
+    auto = jax.grad(lambda a: jnp.dot(cacla.actor_apply(a, obs)[1], err))(agent.actor)
+    for a, b in zip(jax.tree.leaves(cacla._actor_grad(agent.actor, obs, h, mean, err)),
+                    jax.tree.leaves(auto), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
+
+
 def _transition(agent, reward, prev_reward=0.0, seed=2):
     obs, nxt = _obs(seed), _obs(seed + 100)
     a, _ = cacla.act(agent, obs, jax.random.key(seed), cacla.CaclaHyper(sigma=0.3))
@@ -105,10 +121,11 @@ def test_vmapped_update_equals_a_loop(agent):
     batch = jax.tree.map(lambda *x: jnp.stack(x), *trs)
     hp = cacla.CaclaHyper(actor_lr=0.01)
     out, _ = jax.jit(jax.vmap(lambda a, t: cacla.update(a, t, hp)))(agents, batch)
-    for i in range(3):
-        one, _ = cacla.update(jax.tree.map(lambda x, i=i: x[i], agents), trs[i], hp)
+    for i in range(3):  # bit for bit (the sums add in one order alone and batched)
+        one, _ = jax.jit(lambda a, t: cacla.update(a, t, hp))(
+            jax.tree.map(lambda x, i=i: x[i], agents), trs[i])
         for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(out), strict=True):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b)[i], atol=1e-6)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b)[i])
 
 
 def test_cacla_var_repeats_large_improvements(agent):

@@ -310,3 +310,25 @@ def test_a_finished_episode_is_absorbing(env_c):
     after = env_c.step(s, -jnp.ones(4))
     for a, b in zip(jax.tree.leaves(s), jax.tree.leaves(after), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_reset_where_starts_a_new_episode_only_where_asked(env_c):
+    keys = jax.random.split(jax.random.key(3), 2)
+    tasks = gj.Task(action=jnp.array([1, 2], jnp.int32), position=jnp.array([0, 2], jnp.int32),
+                    layout=jnp.array([4, 9], jnp.int32))
+    params = gj.EnvParams(start_noise=0.3)
+
+    def moved(key, task):
+        return env_c.step(env_c.reset(key, task, params), jnp.ones(4), params)
+
+    old = jax.vmap(moved)(keys, tasks)
+    new_keys = jax.random.split(jax.random.key(4), 2)
+    new_tasks = tasks.replace(action=jnp.array([0, 0], jnp.int32))
+    out = jax.jit(jax.vmap(lambda w, s, k, t: env_c.reset_where(w, s, k, t, params)))(
+        jnp.array([True, False]), old, new_keys, new_tasks)
+    fresh = env_c.reset(new_keys[0], jax.tree.map(lambda x: x[0], new_tasks), params)
+    for a, b, c in zip(jax.tree.leaves(out), jax.tree.leaves(fresh), jax.tree.leaves(old),
+                       strict=True):
+        np.testing.assert_allclose(np.asarray(a)[0], np.asarray(b), rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(a)[1], np.asarray(c)[1])
+    assert int(out.step[0]) == 0 and int(out.step[1]) == 1
