@@ -44,9 +44,12 @@ def test_env_throughput_runs_both_backends_at_a_tiny_batch(tmp_path):
 
 def test_al_throughput_runs_at_a_tiny_batch(tmp_path):
     res = _run("al_throughput", ["--batches", "2", "--episodes", "1", "--ref-agents", "1",
-                                 "--mjx-batch", "0"], tmp_path)
+                                 "--loops", "auto_reset", "--mjx-batch", "0"], tmp_path)
     assert _rate(res["reference"]["rl_steps_per_s"])
     (row,) = res["rows"]
-    assert (row["backend"], row["batch"]) == ("mujoco", 2)
-    for k in ("rl_steps_per_s", "ceiling_rl_steps_per_s", "over_reference", "of_ceiling"):
+    assert (row["backend"], row["loop"], row["batch"]) == ("mujoco", "auto_reset", 2)
+    for k in ("rl_steps_per_s", "ceiling_same_physics_rl_steps_per_s",
+              "ceiling_resting_rl_steps_per_s", "over_reference", "of_ceiling_same_physics"):
         assert _rate(row[k]), (k, row[k])
+    assert math.isclose(sum(row["split"].values()), 1.0)
+    assert 0 < row["split"]["physics"] < 1
