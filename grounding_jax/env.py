@@ -17,7 +17,8 @@ Semantics follow the paper (section 2.2; README "The scene" states what we measu
   episode ``wrong_move_extra_steps`` steps later; otherwise it ends after ``episode_length``.
 
 ``done`` is absorbing: stepping a finished episode returns it unchanged (on the C backend its
-physics is skipped), so batches of episodes can run in lockstep and learners mask with it.
+physics is skipped), so batches of episodes can run in lockstep and learners mask with it;
+``reset_where`` is the auto-reset that restarts finished episodes in their batch slots instead.
 NaN entries of an action are replaced by zero (no move) and counted in
 ``metrics["nan_actions"]``; they never reach the physics state.
 """
