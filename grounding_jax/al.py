@@ -186,15 +186,6 @@ def _check_loop(loop: str) -> str:
     return loop
 
 
-def _ordered_sum(x: jax.Array) -> jax.Array:
-    """The sum of ``x`` [n], added in index order: the same bits alone and batched (a
-    ``jnp.sum``'s order depends on the batch's shape)."""
-    acc = x[0]
-    for i in range(1, x.shape[0]):
-        acc = acc + x[i]
-    return acc
-
-
 class _Parts:
     """What both loops share: the episode's draw, one learning step, the episode's metrics."""
 
@@ -244,8 +235,8 @@ class _Parts:
         steps = jnp.sum(live)
         late = (jnp.arange(self.length) >= steps - 10) & live
         return {
-            "return": _ordered_sum(record["reward"]), "final_reward": last.reward,
-            "td_error": jnp.sqrt(_ordered_sum(record["delta_sq"]) / jnp.maximum(steps, 1)),
+            "return": learners.ordered_sum(record["reward"]), "final_reward": last.reward,
+            "td_error": jnp.sqrt(learners.ordered_sum(record["delta_sq"]) / jnp.maximum(steps, 1)),
             "final_point_l1": last.metrics["point_l1"],
             "final_palm_target_dist": last.metrics["palm_target_dist"],
             "touched_target_late": jnp.any((record["touched"] > 0) & late).astype(jnp.float32),

@@ -213,11 +213,12 @@ def at_episode(hp: CaclaHyper, phase1: jax.Array, progress: jax.Array) -> CaclaH
 
 
 def _matvec(x: jax.Array, w: jax.Array) -> jax.Array:
-    """``x @ w``, its terms added one by one in input order.
+    """``x @ w``, its terms added one by one in input order, so an agent trains bit for bit
+    the same alone or in any batch (see :func:`learners.ordered_sum`).
 
-    A ``dot`` (or a ``sum``) is lowered to different kernels for one agent and for a batch
-    under ``vmap``, and they add in different orders; chained elementwise additions round the
-    same way in both, so an agent trains bit for bit the same alone or in any batch.
+    Each product is formed inside the chain (``acc + x[i] * w[i]``) rather than by
+    ``ordered_sum(x[:, None] * w)``: XLA may fuse a multiply and an add into one rounding, so
+    the two forms differ in the last bits, and the shipped results were made with this one.
     """
     acc = x[0] * w[0]
     for i in range(1, x.shape[0]):
@@ -248,8 +249,8 @@ def _critic(critic: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 def _critic_grad(critic: MLP, obs: jax.Array, h: jax.Array) -> MLP:
-    """dV/dtheta at ``obs`` (``h``: the hidden activations there), written out (see
-    :func:`_matvec` for why not ``jax.grad``)."""
+    """dV/dtheta at ``obs`` (``h``: the hidden activations there), written out with
+    :func:`_matvec` (``jax.grad``'s transposed dots would add in batch-dependent orders)."""
     dz = critic.w2[:, 0] * (1.0 - h * h)
     return MLP(w1=obs[:, None] * dz[None, :], b1=dz, w2=h[:, None],
                b2=jnp.ones_like(critic.b2))

@@ -80,6 +80,20 @@ _REGISTRY: dict[str, Learner] = {}
 _BUILTIN = {"cacla": "grounding_jax.cacla"}
 
 
+def ordered_sum(x: jax.Array) -> jax.Array:
+    """The sum of ``x`` over its first axis, its terms added one by one in index order.
+
+    XLA lowers a ``dot`` or a ``sum`` to different kernels for one agent and for a batch
+    under ``vmap``, and they add in different orders, so their last bits differ. Chained
+    elementwise additions round the same way in both: a learner whose sums go through this
+    trains bit for bit the same alone or in any batch (CACLA's do).
+    """
+    acc = x[0]
+    for i in range(1, x.shape[0]):
+        acc = acc + x[i]
+    return acc
+
+
 def register(learner: Learner) -> Learner:
     """Make ``learner`` known by its name and by its config and hyperparameter types.
 
