@@ -35,6 +35,7 @@ import numpy as np
 from flax import struct
 
 from grounding_jax import physics, scene, tasks
+from grounding_jax import placement as free
 from grounding_jax._checks import (
     FINITE,
     NON_NEGATIVE,
@@ -124,13 +125,17 @@ DEFAULT_PARAMS = EnvParams()
 class Task:
     """What to do: an action on the object at a position, in one of the 36 layouts.
 
-    All fields are int32 arrays (so a task can be traced, batched and replaced mid-episode).
-    Build one from names with :func:`make_task`.
+    ``action``, ``position`` and ``layout`` are int32 arrays (so a task can be traced, batched
+    and replaced mid-episode). ``placement`` is ``None`` for the paper's three fixed slots, or
+    float32 ``[3, 3]`` (x, y, yaw of the left, middle and right slot; see
+    :mod:`grounding_jax.placement`) for objects placed anywhere on the reachable table. Build
+    one from names with :func:`make_task`.
     """
 
     action: jax.Array
     position: jax.Array
     layout: jax.Array
+    placement: jax.Array | None = None
 
 
 @struct.dataclass
@@ -170,24 +175,37 @@ def layout_names() -> tuple[str, ...]:
     return tuple(scene.layout_name(i) for i in range(len(scene.LAYOUTS)))
 
 
+def target_position(word: str, layout: int) -> int:
+    """The slot (0 left, 1 middle, 2 right) of the object that ``word`` (a shape or a colour,
+    see ``tasks.TARGET_WORDS``) names in ``layout``."""
+    shapes, colours = scene.LAYOUTS[layout]
+    return (shapes if word in tasks.SHAPES else colours).index(word)
+
+
 def make_task(action: str | int, position: str | int, layout: str | int = 0,
-              task_set: str = tasks.PAPER.name) -> Task:
+              task_set: str = tasks.PAPER.name, placement: Any = None,
+              key: jax.Array | None = None) -> Task:
     """A :class:`Task` from names or indices, validated.
 
     Args:
         action: ``"point"``, ``"touch"`` or ``"push"`` (or 0..2); an action of ``task_set``.
-        position: ``"left"``, ``"middle"`` or ``"right"`` (or 0..2).
-        layout: index 0..35 or a name from :func:`layout_names`.
+        position: ``"left"``, ``"middle"`` or ``"right"`` (or 0..2), or the word that names
+            the target (``"red"``, ``"box"``, ...; its slot in ``layout``).
+        layout: index 0..35 or a name from :func:`layout_names`: which shape and colour
+            stands in each slot.
         task_set: the name of the :class:`tasks.TaskSet` the action belongs to.
+        placement: ``None`` (the paper's fixed slots), ``"random"`` (drawn with ``key`` by
+            :func:`placement.sample`) or explicit coordinates ``[3, 2]`` / ``[3, 3]`` (x, y
+            [, yaw] of the left, middle and right slot; checked by :func:`placement.check`).
+        key: PRNG key for ``placement="random"``.
 
     Returns:
-        The task, as int32 scalars.
+        The task: int32 scalars, and the float32 placement when one is given.
 
     Raises:
-        ValueError: naming the field and the accepted values.
+        ValueError: naming the field and the accepted values (or the allowed region).
     """
     a = _index(action, tasks.get(task_set).action_names, "action")
-    p = _index(position, scene.POSITIONS, "position")
     if isinstance(layout, str):
         names = layout_names()
         if layout not in names:
@@ -196,9 +214,36 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0,
         lay = names.index(layout)
     else:
         lay = _index(layout, tuple(str(i) for i in range(len(scene.LAYOUTS))), "layout")
+    if isinstance(position, str) and position in tasks.TARGET_WORDS:
+        p = target_position(position, lay)
+    elif isinstance(position, str) and position not in scene.POSITIONS:
+        raise ValueError(f"position: unknown value {position!r}; accepted values: "
+                         f"{scene.POSITIONS + tasks.TARGET_WORDS} (a slot or a target word)")
+    else:
+        p = _index(position, scene.POSITIONS, "position")
+    if isinstance(placement, str):
+        if placement != "random":
+            raise ValueError(f"placement: unknown value {placement!r}; accepted values: None "
+                             f"(the paper's slots), 'random' or coordinates [3, 2] / [3, 3]")
+        if key is None:
+            raise ValueError("key: placement='random' needs a PRNG key (key=jax.random.key(0))")
+        placed = free.sample(key)
+    elif placement is not None:
+        placed = jnp.asarray(free.check(placement))
+        if placed.ndim != 2:
+            raise ValueError(f"placement: expected one placement [3, 2|3], got shape "
+                             f"{placed.shape}")
+    else:
+        placed = None
+    if placed is not None and tasks.get(task_set).action_names[a] == "point":
+        # the point reward is the L1 to a stored pose per paper slot; a pose for any (x, y)
+        # (the pointing map) is not built yet
+        raise ValueError("action: 'point' is not available with a free placement yet (its "
+                         "reward needs a pointing pose for any (x, y)); accepted with a "
+                         "placement: 'touch', 'push'")
     i32 = jnp.int32
     return Task(action=jnp.asarray(a, i32), position=jnp.asarray(p, i32),
-                layout=jnp.asarray(lay, i32))
+                layout=jnp.asarray(lay, i32), placement=placed)
 
 
 def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
@@ -213,6 +258,8 @@ def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
             raise ValueError(f"task.{field}: expected integers, got dtype {arr.dtype}")
         if arr.size and (arr.min() < 0 or arr.max() >= n):
             raise ValueError(f"task.{field}: values must be in 0..{n - 1}, got {arr}")
+    if task.placement is not None and not isinstance(task.placement, jax.core.Tracer):
+        free.check(task.placement, "task.placement")
 
 
 # ------------------------------------------------------------------------- joint scaling
@@ -257,9 +304,11 @@ class Env:
                                                      jnp.float32))
 
     # ------------------------------------------------------------------ helpers
-    def _place(self, layout: jax.Array) -> jax.Array:
-        """qpos of the objects' free joints for a layout: [3 shapes, 7]."""
-        pos = self._object_pos[self._shape_slot[layout]]  # [shape, 3]
+    def _place(self, task: Task) -> jax.Array:
+        """qpos of the objects' free joints for a task's layout and placement: [3 shapes, 7]."""
+        if task.placement is not None:
+            return free.free_joint_qpos(task.placement)[self._shape_slot[task.layout]]
+        pos = self._object_pos[self._shape_slot[task.layout]]  # [shape, 3]
         quat = jnp.broadcast_to(jnp.array([1.0, 0, 0, 0], jnp.float32), (3, 4))
         return jnp.concatenate([pos, quat], axis=1)
 
@@ -335,7 +384,7 @@ class Env:
         q_arm = jnp.clip(unscale_joints(self._home_scaled + noise), self._range[:, 0],
                          self._range[:, 1])
         qpos = self._qpos_home.at[self._idx.arm_qpos].set(q_arm)
-        qpos = qpos.at[self._idx.object_qpos].set(self._place(task.layout))
+        qpos = qpos.at[self._idx.object_qpos].set(self._place(task))
         qvel = jnp.zeros(self._idx.nv, jnp.float32)
         sensordata = self._physics_forward(qpos, qvel, live)
         object_start = self._objects(qpos)

@@ -289,13 +289,21 @@ def home_qpos() -> np.ndarray:
     return q
 
 
-def place_objects(qpos: np.ndarray, layout: int) -> np.ndarray:
-    """Write the resting object poses of ``layout`` into ``qpos`` (in place; also returned)."""
+def place_objects(qpos: np.ndarray, layout: int, placement: np.ndarray | None = None
+                  ) -> np.ndarray:
+    """Write the resting object poses of ``layout`` into ``qpos`` (in place; also returned):
+    in the paper's slots, or in those of a ``placement`` ``[3, 3]`` (x, y, yaw per slot; see
+    :mod:`grounding_jax.placement`)."""
     idx = index()
     pos = object_positions()
     for shape, slot in enumerate(layout_shape_slots()[layout]):
-        qpos[idx.object_qpos[shape, :3]] = pos[slot]
-        qpos[idx.object_qpos[shape, 3:]] = (1.0, 0.0, 0.0, 0.0)
+        if placement is None:
+            qpos[idx.object_qpos[shape, :3]] = pos[slot]
+            qpos[idx.object_qpos[shape, 3:]] = (1.0, 0.0, 0.0, 0.0)
+        else:
+            x, y, yaw = np.asarray(placement, float)[slot]
+            qpos[idx.object_qpos[shape, :3]] = (x, y, TABLE_Z + OBJECT_HALF)
+            qpos[idx.object_qpos[shape, 3:]] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
     return qpos
 
 

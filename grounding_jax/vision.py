@@ -79,13 +79,25 @@ class EyeRenderer:
         self._cam.fixedcamid = self.model.camera("eye").id
         self._rect = mujoco.MjrRect(0, 0, width, height)
 
-    def render(self, layout: int) -> np.ndarray:
-        """RGB image ``[height, width, 3]`` uint8 of ``layout`` with the arm at home."""
+    def render(self, layout: int, placement: np.ndarray | None = None,
+               qpos: np.ndarray | None = None) -> np.ndarray:
+        """RGB image ``[height, width, 3]`` uint8 of ``layout`` with the arm at home.
+
+        Args:
+            layout: which shape and colour stands in each slot (0..35).
+            placement: ``None`` (the paper's slots) or a placement ``[3, 3]`` (see
+                :mod:`grounding_jax.placement`).
+            qpos: a full physics ``qpos`` (e.g. a frame of an episode) to draw instead of
+                the resting objects; ``layout`` still gives the colours.
+        """
         m, d = self.model, self.data
         shapes, colours = scene.LAYOUTS[layout]
         for shape, colour in zip(shapes, colours, strict=True):
             m.geom_rgba[m.geom(f"{shape}_geom").id] = scene.COLOUR_RGBA[colour]
-        d.qpos[:] = scene.place_objects(scene.home_qpos(), layout)
+        if qpos is not None:
+            d.qpos[:] = qpos
+        else:
+            d.qpos[:] = scene.place_objects(scene.home_qpos(), layout, placement)
         mujoco.mj_forward(m, d)
         self._ctx.make_current()
         mujoco.mjv_updateScene(m, d, self._opt, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL,
@@ -135,15 +147,67 @@ def edges(img: np.ndarray) -> np.ndarray:
     return cv2.morphologyEx(img, cv2.MORPH_GRADIENT, kernel)
 
 
-def to_bitmap(edge_img: np.ndarray) -> np.ndarray:
-    """Resize to 60 x 20 (area average) and binarise: ``[1200]`` float32 in {0, 1}."""
-    small = cv2.resize(edge_img.astype(np.float32), (BITMAP_W, BITMAP_H),
-                       interpolation=cv2.INTER_AREA)
-    return (small > 0.0).astype(np.float32).reshape(BITMAP_SIZE)
+def to_bitmap(edge_img: np.ndarray, size: tuple[int, int] = (BITMAP_W, BITMAP_H),
+              binary: bool = True) -> np.ndarray:
+    """Resize to ``size`` (width, height; the paper's 60 x 20) by area average and
+    binarise: ``[width * height]`` float32 in {0, 1}; with ``binary=False`` the averaged
+    edge level in [0, 1] is kept instead (where an edge falls inside a cell)."""
+    small = cv2.resize(edge_img.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    out = (small > 0.0).astype(np.float32) if binary else small / 255.0
+    return out.reshape(size[0] * size[1])
 
 
-def bitmap_from_image(rgb: np.ndarray) -> np.ndarray:
-    """The whole pipeline: RGB camera image -> ``[1200]`` edge bitmap."""
+def bitmap_from_image(rgb: np.ndarray, window: tuple[int, int, int, int] | None = None,
+                      size: tuple[int, int] = (BITMAP_W, BITMAP_H), binary: bool = True
+                      ) -> np.ndarray:
+    """The whole pipeline: RGB camera image -> ``[1200]`` edge bitmap.
+
+    Args:
+        rgb: the camera image ``[H, W, 3]``.
+        window: ``None`` crops to the objects' group (the paper: where the objects stand
+            relative to each other); a fixed pixel window ``(x0, y0, x1, y1)`` (e.g.
+            :func:`table_window`) keeps where they stand on the table.
+        size: the bitmap's (width, height).
+        binary: binarise the bitmap (the paper) or keep grey edge levels (see
+            :func:`to_bitmap`).
+    """
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"image: expected an RGB image [H, W, 3], got shape {rgb.shape}")
-    return to_bitmap(edges(invert(crop_group(to_black_and_white(rgb)))))
+    bw = to_black_and_white(rgb)
+    if window is None:
+        bw = crop_group(bw)
+    else:
+        x0, y0, x1, y1 = window
+        bw = bw[y0:y1, x0:x1]
+    return to_bitmap(edges(invert(bw)), size, binary)
+
+
+def project(points: np.ndarray, width: int = WIDTH, height: int = HEIGHT) -> np.ndarray:
+    """Pixel coordinates ``[..., 2]`` (column, row; row 0 at the top) of world points
+    ``[..., 3]`` in the eye camera's image (a pinhole with MuJoCo's vertical field of view)."""
+    m = scene.model()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)  # the camera is fixed in the world: any pose will do
+    cam = m.camera("eye").id
+    rel = (np.asarray(points, float) - d.cam_xpos[cam]) @ d.cam_xmat[cam].reshape(3, 3)
+    f = 0.5 * height / np.tan(np.radians(m.cam_fovy[cam]) / 2.0)
+    depth = -rel[..., 2]  # the camera looks down its -z axis
+    return np.stack([0.5 * width + f * rel[..., 0] / depth,
+                     0.5 * height - f * rel[..., 1] / depth], axis=-1)
+
+
+@functools.cache
+def table_window(margin: int = 3) -> tuple[int, int, int, int]:
+    """The fixed pixel window ``(x0, y0, x1, y1)`` that holds every object wherever the free
+    placement puts it: the image of the reachable region's corners, widened by the objects'
+    extent (a box's half-diagonal around, its height up) and ``margin`` pixels."""
+    from grounding_jax import placement
+
+    r = float(np.hypot(scene.OBJECT_HALF, scene.OBJECT_HALF))
+    corners = [(x + dx, y + dy, scene.TABLE_Z + dz)
+               for x in placement.REACH_X for y in placement.REACH_Y
+               for dx in (-r, r) for dy in (-r, r) for dz in (0.0, 2 * scene.OBJECT_HALF)]
+    uv = project(np.array(corners))
+    x0, y0 = np.floor(uv.min(axis=0)).astype(int) - margin
+    x1, y1 = np.ceil(uv.max(axis=0)).astype(int) + margin + 1
+    return max(int(x0), 0), max(int(y0), 0), min(int(x1), WIDTH), min(int(y1), HEIGHT)

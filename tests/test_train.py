@@ -75,6 +75,13 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     for name in ("fig15", "fig12"):
         assert (tmp_path / "an" / f"{name}.png").stat().st_size > 1000
         assert f"an/{name}.png" in report
+    xy = data["beyond"]["tl_xy"]
+    assert xy["seeds"] == 1 and xy["scenes"] == 6000 and xy["test_scenes"] == 1200
+    # even the quick localizer (4000 updates) is far better than guessing the region's
+    # centre (~6.5 cm median)
+    assert xy["median_cm_median_seed"] < 3.0
+    assert "## Beyond the paper" in report and "beyond/tl_xy.png" in report
+    assert (tmp_path / "beyond" / "tl_xy.png").stat().st_size > 1000
     assert not list(tmp_path.rglob("*.tmp")) and not list(tmp_path.glob(".modules*"))
     csv = (tmp_path / "metrics.csv").read_text().splitlines()
     assert csv[0] == "key,value" and any(r.startswith("an.train.acc_mean,") for r in csv)

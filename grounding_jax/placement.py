@@ -1,0 +1,113 @@
+"""Free placement: the three objects anywhere on the reachable part of the table.
+
+The paper puts the objects in three fixed slots (left, middle, right: ``scene.OBJECT_Y`` at
+``scene.OBJECT_X``). A *placement* moves the slots: ``[3 slots, 3]`` float32 rows
+``(x, y, yaw)`` in metres and radians, for the left, middle and right object, in that order
+(the slots stay ranked by ``y``, so "left" still means the object with the smallest ``y``
+and the layouts still say which shape and colour stands in each slot). Placement is data,
+like the layout: one compiled model serves every placement.
+
+The region is where the iCub's palm reaches a point 3 cm above an object's top within about
+1 cm with its four arm joints (measured with ``ik.solve`` from several start poses; the
+paper's three slots lie on its edge): ``REACH_X`` x ``REACH_Y``. Centres are at least
+``MIN_SPACING`` apart.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax import scene
+
+#: The reachable region of object centres (robot frame, metres): x (backward), y (right).
+REACH_X = (-0.27, -0.20)
+REACH_Y = (0.09, 0.31)
+#: Smallest distance between two object centres (metres).
+MIN_SPACING = 0.09
+#: Candidate triples drawn per placement: the first one that keeps the spacing is taken.
+#: About 1.3% of uniform triples do, so 1024 candidates all fail with probability ~2e-6;
+#: then the paper's fixed slots are used.
+CANDIDATES = 1024
+_TOL = 1e-6  # float32 round-off allowed at the borders
+
+
+def fixed() -> np.ndarray:
+    """The paper's three slots as a placement ``[3, 3]`` (yaw 0)."""
+    pos = scene.object_positions()
+    return np.concatenate([pos[:, :2], np.zeros((3, 1))], axis=1).astype(np.float32)
+
+
+def region_text() -> str:
+    """The allowed region, as the error messages say it."""
+    return (f"x in [{REACH_X[0]}, {REACH_X[1]}] m, y in [{REACH_Y[0]}, {REACH_Y[1]}] m, "
+            f"centres >= {MIN_SPACING} m apart, rows ordered left to right (increasing y)")
+
+
+def check(placement: Any, field: str = "placement") -> np.ndarray:
+    """Validate a placement; return it as float32 ``[3, 3]`` (a missing yaw column is 0).
+
+    Args:
+        placement: ``[3, 2]`` (x, y) or ``[3, 3]`` (x, y, yaw) for the left, middle and
+            right object; or a batch ``[..., 3, 2|3]``.
+        field: the name the error messages use.
+
+    Raises:
+        ValueError: naming the bad value and the allowed region (NaN or infinite values, a
+            wrong shape, a centre off the reachable region, two objects too close, rows out
+            of left-to-right order).
+    """
+    arr = np.asarray(placement, dtype=np.float64)
+    if arr.ndim < 2 or arr.shape[-2:] not in ((3, 2), (3, 3)):
+        raise ValueError(f"{field}: expected shape [3, 2] (x, y) or [3, 3] (x, y, yaw) for the "
+                         f"left, middle and right object, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{field}: values must be finite numbers, got {arr.tolist()}")
+    xy = arr[..., :2]
+    for axis, (lo, hi), name in ((0, REACH_X, "x"), (1, REACH_Y, "y")):
+        v = xy[..., axis]
+        bad = (v < lo - _TOL) | (v > hi + _TOL)
+        if np.any(bad):
+            raise ValueError(f"{field}: {name} = {float(v[bad][0]):.4f} m lies off the "
+                             f"reachable region; allowed: {region_text()}")
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        d = np.linalg.norm(xy[..., i, :] - xy[..., j, :], axis=-1)
+        if np.any(d < MIN_SPACING - _TOL):
+            raise ValueError(f"{field}: objects {i} and {j} overlap or nearly so (centres "
+                             f"{float(np.min(d)):.4f} m apart); allowed: {region_text()}")
+    if np.any(np.diff(xy[..., 1], axis=-1) < 0):
+        raise ValueError(f"{field}: rows must be ordered left, middle, right (increasing y), "
+                         f"got y = {xy[..., 1].tolist()}")
+    if arr.shape[-1] == 2:
+        arr = np.concatenate([arr, np.zeros((*arr.shape[:-1], 1))], axis=-1)
+    return arr.astype(np.float32)
+
+
+def sample(key: jax.Array) -> jax.Array:
+    """A random placement ``[3, 3]``: centres uniform over the region given the spacing
+    (rejection among :data:`CANDIDATES` uniform triples), ranked left to right, yaw uniform
+    in [0, 2 pi). Pure and ``vmap``-able.
+    """
+    k_xy, k_yaw = jax.random.split(key)
+    lo = jnp.array([REACH_X[0], REACH_Y[0]], jnp.float32)
+    hi = jnp.array([REACH_X[1], REACH_Y[1]], jnp.float32)
+    xy = jax.random.uniform(k_xy, (CANDIDATES, 3, 2), jnp.float32, lo, hi)
+    d = jnp.linalg.norm(xy[:, :, None] - xy[:, None, :], axis=-1)
+    ok = jnp.all((d >= MIN_SPACING) | jnp.eye(3, dtype=bool), axis=(1, 2))
+    pick = jnp.argmax(ok)
+    chosen = jnp.where(ok[pick], xy[pick], jnp.asarray(fixed()[:, :2]))
+    chosen = chosen[jnp.argsort(chosen[:, 1])]
+    yaw = jax.random.uniform(k_yaw, (3, 1), jnp.float32, 0.0, 2.0 * jnp.pi)
+    return jnp.concatenate([chosen, yaw], axis=1)
+
+
+def free_joint_qpos(placement: jax.Array) -> jax.Array:
+    """Resting free-joint qpos ``[3 slots, 7]`` (position, quaternion) of a placement."""
+    z = jnp.full((3, 1), scene.TABLE_Z + scene.OBJECT_HALF, jnp.float32)
+    half = 0.5 * placement[:, 2:3]
+    zeros = jnp.zeros_like(half)
+    quat = jnp.concatenate([jnp.cos(half), zeros, zeros, jnp.sin(half)], axis=1)
+    return jnp.concatenate([placement[:, :2], z, quat], axis=1)
