@@ -23,6 +23,17 @@ def _scripted_runner(env: gj.Env):
 
 
 @pytest.fixture(scope="session")
+def renderer():
+    """The eye camera's renderer; the test is skipped (and says why) without headless GL."""
+    from grounding_jax import vision
+
+    try:
+        return vision.eye_renderer()
+    except RuntimeError as e:  # no headless GL here: say so, do not fake it
+        pytest.skip(f"no headless OpenGL backend: {e}")
+
+
+@pytest.fixture(scope="session")
 def env_c() -> gj.Env:
     return gj.make_env("mujoco")
 

@@ -116,14 +116,6 @@ def test_a_placed_task_with_a_concrete_bad_placement_is_refused_at_reset(env):
         env.reset(jax.random.key(0), bad)
 
 
-@pytest.fixture(scope="module")
-def renderer():
-    try:
-        return vision.eye_renderer()
-    except RuntimeError as e:  # no headless GL here: say so, do not fake it
-        pytest.skip(f"no headless OpenGL backend: {e}")
-
-
 def test_the_table_window_holds_every_object_and_the_shipped_scenes_match(renderer, samples):
     x0, y0, x1, y1 = vision.table_window()
     for i in range(0, 500, 25):

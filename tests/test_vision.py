@@ -60,14 +60,6 @@ def test_pipeline_rejects_a_non_rgb_image():
         vision.bitmap_from_image(np.zeros((240, 320)))
 
 
-@pytest.fixture(scope="module")
-def renderer():
-    try:
-        return vision.eye_renderer()
-    except RuntimeError as e:  # no headless GL here: say so, do not fake it
-        pytest.skip(f"no headless OpenGL backend: {e}")
-
-
 def test_render_is_320x240_and_the_cache_matches_a_fresh_render(renderer):
     cached = tl_data.cached_bitmaps()
     for layout in (0, 13, 35):
