@@ -97,6 +97,10 @@ class EyeRenderer:
         if qpos is not None:
             d.qpos[:] = qpos
         else:
+            if placement is not None:
+                from grounding_jax import placement as free
+
+                placement = free.check(placement)
             d.qpos[:] = scene.place_objects(scene.home_qpos(), layout, placement)
         mujoco.mj_forward(m, d)
         self._ctx.make_current()
