@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax import physics, scene, tasks
+from grounding_jax import physics, scene, tasks, tl_data
 from grounding_jax import placement as free
 from grounding_jax._checks import (
     FINITE,
@@ -175,13 +175,6 @@ def layout_names() -> tuple[str, ...]:
     return tuple(scene.layout_name(i) for i in range(len(scene.LAYOUTS)))
 
 
-def target_position(word: str, layout: int) -> int:
-    """The slot (0 left, 1 middle, 2 right) of the object that ``word`` (a shape or a colour,
-    see ``tasks.TARGET_WORDS``) names in ``layout``."""
-    shapes, colours = scene.LAYOUTS[layout]
-    return (shapes if word in tasks.SHAPES else colours).index(word)
-
-
 def make_task(action: str | int, position: str | int, layout: str | int = 0,
               task_set: str = tasks.PAPER.name, placement: Any = None,
               key: jax.Array | None = None) -> Task:
@@ -215,7 +208,7 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0,
     else:
         lay = _index(layout, tuple(str(i) for i in range(len(scene.LAYOUTS))), "layout")
     if isinstance(position, str) and position in tasks.TARGET_WORDS:
-        p = target_position(position, lay)
+        p = tl_data.label_of(lay, tl_data.word_index(position))
     elif isinstance(position, str) and position not in scene.POSITIONS:
         raise ValueError(f"position: unknown value {position!r}; accepted values: "
                          f"{scene.POSITIONS + tasks.TARGET_WORDS} (a slot or a target word)")

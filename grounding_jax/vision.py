@@ -22,6 +22,7 @@ import cv2
 import mujoco
 import numpy as np
 
+from grounding_jax import placement as free
 from grounding_jax import scene
 
 WIDTH, HEIGHT = 320, 240
@@ -98,8 +99,6 @@ class EyeRenderer:
             d.qpos[:] = qpos
         else:
             if placement is not None:
-                from grounding_jax import placement as free
-
                 placement = free.check(placement)
             d.qpos[:] = scene.place_objects(scene.home_qpos(), layout, placement)
         mujoco.mj_forward(m, d)
@@ -205,11 +204,9 @@ def table_window(margin: int = 3) -> tuple[int, int, int, int]:
     """The fixed pixel window ``(x0, y0, x1, y1)`` that holds every object wherever the free
     placement puts it: the image of the reachable region's corners, widened by the objects'
     extent (a box's half-diagonal around, its height up) and ``margin`` pixels."""
-    from grounding_jax import placement
-
     r = float(np.hypot(scene.OBJECT_HALF, scene.OBJECT_HALF))
     corners = [(x + dx, y + dy, scene.TABLE_Z + dz)
-               for x in placement.REACH_X for y in placement.REACH_Y
+               for x in free.REACH_X for y in free.REACH_Y
                for dx in (-r, r) for dy in (-r, r) for dz in (0.0, 2 * scene.OBJECT_HALF)]
     uv = project(np.array(corners))
     x0, y0 = np.floor(uv.min(axis=0)).astype(int) - margin
