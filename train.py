@@ -37,8 +37,10 @@ PROFILES = {
               # shorter than the paper's 150 + 300: the quick profile must stay under 3 min
               "al_seeds": 3, "al_phase1": 150, "al_phase2": 150, "al_no_tricks": 200,
               "an_seeds": 3, "an_tl_epochs": 200,
-              # beyond the paper: the continuous TL, small
-              "xy_seeds": 1, "xy_scenes": 6000, "xy_hidden": 50, "xy_steps": 4000},
+              # beyond the paper, small: the continuous TL; the free family's robot
+              "xy_seeds": 1, "xy_scenes": 6000, "xy_hidden": 50, "xy_steps": 4000,
+              "free_seeds": 2, "free_phase1": 50, "free_phase2": 100, "free_placements": 4,
+              "free_eyes_placements": 2, "moving_scenes": 2},
     "paper": {"tl_epochs": 600, "tl_seeds": 10,
               "tl_hidden": _toml_grid("fig6_tl_hidden", "hidden"),
               "tl_replication": _toml_grid("fig7_tl_replication", "replication"),
@@ -47,7 +49,9 @@ PROFILES = {
               # after 1200 (more did not help: README "Action learner"); >= 8 agents
               "al_seeds": 8, "al_phase1": 150, "al_phase2": 1050, "al_no_tricks": 2000,
               "an_seeds": 5, "an_tl_epochs": 600,
-              "xy_seeds": 3, "xy_scenes": 18000, "xy_hidden": 200, "xy_steps": 60000},
+              "xy_seeds": 3, "xy_scenes": 18000, "xy_hidden": 200, "xy_steps": 60000,
+              "free_seeds": 8, "free_phase1": 150, "free_phase2": 1850, "free_placements": 40,
+              "free_eyes_placements": 20, "moving_scenes": 16},
 }
 #: the AL sweeps train.py runs (Figs 8, 9), with each profile's changes to the files
 AL_SWEEPS = {
@@ -61,7 +65,7 @@ AL_SWEEPS = {
                                      "actor_hidden=10,40"]},
 }
 #: settings that may be 0 (an empty phase, no no-tricks run)
-ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks"}
+ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2"}
 
 
 def _settings(profile: str, overrides: list[str]) -> dict:
@@ -80,8 +84,10 @@ def _settings(profile: str, overrides: list[str]) -> dict:
         if min(parsed) < low:
             raise ValueError(f"--set {key}: values must be >= {low}, got {value!r}")
         settings[key] = parsed if isinstance(settings[key], list) else parsed[0]
-    if settings["al_phase1"] + settings["al_phase2"] < 1:
-        raise ValueError("--set al_phase1/al_phase2: together at least one episode, got 0")
+    for part in ("al", "free"):
+        if settings[f"{part}_phase1"] + settings[f"{part}_phase2"] < 1:
+            raise ValueError(f"--set {part}_phase1/{part}_phase2: together at least one "
+                             f"episode, got 0")
     return settings
 
 
@@ -221,9 +227,11 @@ def al_sweeps(key, out: pathlib.Path, specs: dict, resume: bool) -> dict:
     return res
 
 
-def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agents) -> dict:
+def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agents,
+                   free_modules: dict | None = None) -> dict:
     """The AN results (ESN naming, Fig 15) and the SOM (Fig 12), from AL agent 0; the trained
-    TL, AL agent 0 and AN are saved to ``out/../modules`` with the configs that made them."""
+    TL, AL agent 0 and AN are saved to ``out/../modules`` with the configs that made them (and
+    the free family's robot, ``free_modules``, beside them)."""
     import jax
 
     from grounding_jax import an, trained
@@ -233,7 +241,8 @@ def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agen
                           env_config=env_config)
     trained.save(out.parent / "modules", modules["tl_params"], modules["tl_hyper"], agent,
                  al_config, modules["net"], modules["esn_config"], env_config,
-                 extra={"tl_epochs": st["an_tl_epochs"], "al": "agent 0 of the AL results"})
+                 extra={"tl_epochs": st["an_tl_epochs"], "al": "agent 0 of the AL results"},
+                 free_modules=free_modules)
     print(f"an    naming accuracy train {res['train']['acc_mean']:.3f} test "
           f"{res['test']['acc_mean']:.3f} (random starts {res['test_random']['acc_mean']:.3f});"
           f" SOM purity action {res['fig12']['purity_action']:.2f} position "
@@ -241,17 +250,68 @@ def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agen
     return res
 
 
-def beyond(key, out: pathlib.Path, st: dict) -> dict:
-    """Beyond the paper: the target localizer for objects placed anywhere (``tl_xy``)."""
-    from grounding_jax import tl_xy
+def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[dict, dict]:
+    """Beyond the paper: the target localizer for objects placed anywhere (``tl_xy``), the
+    free family's actor trained on random placements and judged on held-out ones (told the
+    target's coordinates by the simulator, then by the TL through the eye camera), and a
+    moving target. Returns (results, the modules to save: TL-xy seed 0, the median agent)."""
+    import jax
+    import numpy as np
+
+    from grounding_jax import al_experiments, tl_xy, trained
+    from grounding_jax import beyond as B
+    from grounding_jax.cacla import CaclaConfig
+    from grounding_jax.env import Env
 
     cfg = tl_xy.XYConfig(hidden=st["xy_hidden"], steps=st["xy_steps"],
                          eval_every=max(st["xy_steps"] // 10, 1))
-    res, _ = tl_xy.run(key, out, seeds=st["xy_seeds"], config=cfg, scenes=st["xy_scenes"])
+    res, xy_params = tl_xy.run(key, out, seeds=st["xy_seeds"], config=cfg,
+                               scenes=st["xy_scenes"])
     print(f"xy    TL with free placement: held-out error median "
           f"{res['median_cm_median_seed']:.2f} cm, 95th percentile "
           f"{res['p95_cm_median_seed']:.2f} cm (median seed)", flush=True)
-    return {"tl_xy": res}
+    k_train, k_eyes, k_eyes_eval, k_move = jax.random.split(key_free, 4)
+    free, agents = B.train(k_train, st["free_seeds"], st["free_phase1"], st["free_phase2"],
+                           st["free_placements"], backend=backend,
+                           checkpoints=(st["free_phase1"] + st["free_phase2"]) // 2)
+    agent = jax.tree.map(lambda x: x[free["median_agent"]], agents)
+    modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent,
+               "al_config": CaclaConfig(task_set="free"), "env_config": B.env_config(backend)}
+    # the whole robot: coordinates from the eye camera and the TL instead of the simulator
+    looks = trained.TrainedFree(xy_params, cfg, trained.TrainedAL(agent, modules["al_config"]),
+                                modules["env_config"])
+    batch, err = B.eyes_tasks(looks.localize, k_eyes, st["free_eyes_placements"])
+    env = Env(modules["env_config"])
+    eyes_out = al_experiments.make_success(env, batch=batch)(
+        jax.tree.map(lambda x: x[None], agent), k_eyes_eval, B.hyper().env)
+    free["eyes"] = {**B.success(eyes_out), "placements": st["free_eyes_placements"],
+                    "tl_error_cm_median": float(np.median(err)),
+                    "tl_error_cm_p95": float(np.quantile(err, 0.95))}
+    free["moving"] = B.moving(agent, k_move, out, scenes=st["moving_scenes"], backend=backend)
+    ba, eb = free["final"]["by_action"], free["eyes"]["by_action"]
+    print(f"free  median agent on held-out placements: point {ba['point']:.2f} touch "
+          f"{ba['touch']:.2f} push {ba['push']:.2f}; through its eyes (TL): point "
+          f"{eb['point']:.2f} touch {eb['touch']:.2f} push {eb['push']:.2f}", flush=True)
+    return {"tl_xy": res, "free": free}, modules
+
+
+def camera_strip(out: pathlib.Path, key) -> dict:
+    """One command performed by the loaded robot at a random placement, as a strip of camera
+    frames (``out/camera_strip.png``)."""
+    import grounding_jax as gj
+    from grounding_jax import beyond as B
+
+    robot = gj.load(out.parent / "modules")
+    layout = 3
+    res = robot.perform("push", "red", layout=layout, placement="random", key=key)
+    frames, labels = B.episode_frames(layout, res["placement"], res["trajectory"], every=20)
+    frames, labels = [res["image"], *frames], ["what the TL saw", *labels]
+    B.strip(frames, labels, out, title=f'"push red": the TL put it at '
+            f'({res["xy"][0]:.3f}, {res["xy"][1]:.3f}) m, true '
+            f'({res["true_xy"][0]:.3f}, {res["true_xy"][1]:.3f}) m')
+    moved = float(res["trajectory"].metrics["target_moved"][-1])
+    return {"command": "push red", "layout": layout, "xy": res["xy"].tolist(),
+            "true_xy": res["true_xy"].tolist(), "target_moved_cm": 100 * moved}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -278,7 +338,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     out.mkdir(parents=True, exist_ok=True)
     # the one split (split is prefix-stable: a part added at the end leaves the others' keys)
-    k_env, k_tl, k_sw, k_al, k_an, k_xy = jax.random.split(jax.random.key(args.seed), 6)
+    k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip = jax.random.split(
+        jax.random.key(args.seed), 8)
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()
@@ -294,11 +355,13 @@ def main(argv: list[str] | None = None) -> int:
     al, agents = al_experiments(k_al, out / "al", args.settings, env_config, al_config)
     wall["al"] = time.perf_counter() - t
     t = time.perf_counter()
-    an = an_experiments(k_an, out / "an", args.settings, env_config, al_config, agents)
-    wall["an"] = time.perf_counter() - t
-    t = time.perf_counter()
-    extra = beyond(k_xy, out / "beyond", args.settings)
+    extra, free_modules = beyond(k_xy, k_free, out / "beyond", args.settings, args.backend)
     wall["beyond"] = time.perf_counter() - t
+    t = time.perf_counter()
+    an = an_experiments(k_an, out / "an", args.settings, env_config, al_config, agents,
+                        free_modules)
+    extra["strip"] = camera_strip(out / "beyond", k_strip)
+    wall["an"] = time.perf_counter() - t
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
               "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "wall_s": wall,

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from grounding_jax import cacla, learners, rollout, scene, tasks
+from grounding_jax import placement as free
 from grounding_jax._checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.env import (
     DEFAULT_PARAMS,
@@ -38,6 +39,10 @@ from grounding_jax.env import (
 #: (phase-1 episodes, phase-2 episodes)
 SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
 
+
+#: Where training episodes put the objects: the paper's slots, or anywhere
+#: (:func:`placement.sample`, one placement per episode).
+PLACEMENTS = ("fixed", "random")
 
 #: What each count of :class:`ALConfig` accepts (its ``__post_init__`` and the sweep runner
 #: read it).
@@ -59,6 +64,9 @@ class ALConfig:
             env's task set).
         positions: position indices to draw tasks from (default all three).
         random_layout: draw the layout per episode (else layout 0 always).
+        placement: ``"fixed"`` (the paper's three slots) or ``"random"`` (each episode
+            places the objects anywhere on the reachable table; the ``"free"`` task set
+            tells the actor the target's coordinates).
     """
 
     env: EnvConfig = EnvConfig()
@@ -68,9 +76,13 @@ class ALConfig:
     actions: tuple[int, ...] | None = None
     positions: tuple[int, ...] = (0, 1, 2)
     random_layout: bool = True
+    placement: str = "fixed"
 
     def __post_init__(self) -> None:
         check_config(self, CONFIG_RULES)
+        if self.placement not in PLACEMENTS:
+            raise ValueError(f"placement: unknown value {self.placement!r}; accepted values: "
+                             f"{PLACEMENTS}")
         if self.phase1_episodes + self.phase2_episodes < 1:
             raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
         n_actions = self.env.tasks.n_actions
@@ -205,6 +217,8 @@ class _Parts:
         task = Task(action=jax.random.choice(ka, self._actions),
                     position=jax.random.choice(kp, self._positions),
                     layout=jax.random.randint(kl, (), 0, self._n_layouts, jnp.int32))
+        if self.config.placement == "random":  # a key of its own: the other draws stay
+            task = task.replace(placement=free.sample(jax.random.fold_in(k_task, 1)))
         return task, k_reset, jax.random.split(k_steps, self.length)
 
     def learn(self, agent, state, k: jax.Array, lhp, hp: ALHyper):

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from grounding_jax import al, cacla, learners, rollout, scene, scripted, tasks
+from grounding_jax import placement as free
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import (
     DEFAULT_PARAMS,
@@ -63,6 +64,21 @@ def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS, actions: tuple[int, ...] =
     a, p, lay = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.asarray(layouts),
                             indexing="ij")
     return Task(*(jnp.asarray(x.ravel(), jnp.int32) for x in (a, p, lay)))
+
+
+def free_tasks(key: jax.Array, placements: int, actions: tuple[int, ...] = (0, 1, 2)) -> Task:
+    """Every action of ``actions`` at every slot of ``placements`` random placements
+    (:func:`placement.sample`), each placement with a random layout, as a batched
+    :class:`Task` (for the ``"free"`` task set's evaluation)."""
+    k_place, k_layout = jax.random.split(key)
+    placed = jax.vmap(free.sample)(jax.random.split(k_place, placements))
+    layout = jax.random.randint(k_layout, (placements,), 0, len(scene.LAYOUTS), jnp.int32)
+    a, p, i = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.arange(placements),
+                          indexing="ij")
+    i = i.ravel()
+    return Task(action=jnp.asarray(a.ravel(), jnp.int32),
+                position=jnp.asarray(p.ravel(), jnp.int32), layout=layout[i],
+                placement=placed[i])
 
 
 def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = tasks.PAPER
@@ -112,13 +128,13 @@ def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = 
 
 def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = ALL_LAYOUTS,
                  starts: int = 1, actions: tuple[int, ...] = (0, 1, 2),
-                 steps: int = EVAL_STEPS):
+                 steps: int = EVAL_STEPS, batch: Task | None = None):
     """Build ``success(agents, key, env_params) -> dict`` for a batch of agents
     (``env_params`` leaves are shared scalars or per agent ``[agents]``).
 
-    Each agent runs every task (``actions`` x 3 positions x ``layouts``) ``starts`` times, for
-    ``steps`` steps; every episode draws its own start pose (``env_params.start_noise``;
-    0 = the home pose).
+    Each agent runs every task (``actions`` x 3 positions x ``layouts``, or the batched tasks
+    ``batch``, e.g. :func:`free_tasks`) ``starts`` times, for ``steps`` steps; every episode
+    draws its own start pose (``env_params.start_noise``; 0 = the home pose).
 
     Returns:
         A function whose dict holds arrays ``[agents, starts, tasks]`` (see
@@ -126,7 +142,7 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
     """
     env = as_env(env, steps)
     evaluate = al.make_eval(env)
-    batch = all_tasks(layouts, actions)
+    batch = all_tasks(layouts, actions) if batch is None else batch
     n_tasks = int(batch.action.shape[0])
 
     def one(agent, key, task, params):

@@ -130,12 +130,20 @@ class Task:
     float32 ``[3, 3]`` (x, y, yaw of the left, middle and right slot; see
     :mod:`grounding_jax.placement`) for objects placed anywhere on the reachable table. Build
     one from names with :func:`make_task`.
+
+    Two optional float32 ``[2]`` fields serve the ``"free"`` task set (whose actor is told
+    the target's coordinates): ``target_xy`` -- the coordinates the actor is told (e.g. the
+    TL's estimate from the camera, or where the target stood at the start); ``None`` tells it
+    the simulator's, every step. ``velocity`` -- the target slides on the table at this
+    velocity (m/s) until it reaches the reachable region's border; ``None`` keeps it still.
     """
 
     action: jax.Array
     position: jax.Array
     layout: jax.Array
     placement: jax.Array | None = None
+    target_xy: jax.Array | None = None
+    velocity: jax.Array | None = None
 
 
 @struct.dataclass
@@ -177,7 +185,8 @@ def layout_names() -> tuple[str, ...]:
 
 def make_task(action: str | int, position: str | int, layout: str | int = 0,
               task_set: str = tasks.PAPER.name, placement: Any = None,
-              key: jax.Array | None = None) -> Task:
+              key: jax.Array | None = None, target_xy: Any = None,
+              velocity: Any = None) -> Task:
     """A :class:`Task` from names or indices, validated.
 
     Args:
@@ -191,9 +200,15 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0,
             :func:`placement.sample`) or explicit coordinates ``[3, 2]`` / ``[3, 3]`` (x, y
             [, yaw] of the left, middle and right slot; checked by :func:`placement.check`).
         key: PRNG key for ``placement="random"``.
+        target_xy: the target's coordinates (metres) the actor is told, ``[2]``; default
+            the simulator's (see :class:`Task`).
+        velocity: the target's sliding velocity (m/s), ``[2]``; needs a placement. With a
+            velocity only the target must lie in the reachable region (see
+            :func:`placement.moving`).
 
     Returns:
-        The task: int32 scalars, and the float32 placement when one is given.
+        The task: int32 scalars, and the float32 placement, coordinates and velocity when
+        given.
 
     Raises:
         ValueError: naming the field and the accepted values (or the allowed region).
@@ -222,21 +237,32 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0,
             raise ValueError("key: placement='random' needs a PRNG key (key=jax.random.key(0))")
         placed = free.sample(key)
     elif placement is not None:
-        placed = jnp.asarray(free.check(placement))
+        reach = (p,) if velocity is not None else (0, 1, 2)  # see placement.moving
+        placed = jnp.asarray(free.check(placement, reach=reach))
         if placed.ndim != 2:
             raise ValueError(f"placement: expected one placement [3, 2|3], got shape "
                              f"{placed.shape}")
     else:
         placed = None
-    if placed is not None and tasks.get(task_set).action_names[a] == "point":
-        # the point reward is the L1 to a stored pose per paper slot; a pose for any (x, y)
-        # (the pointing map) is not built yet
-        raise ValueError("action: 'point' is not available with a free placement yet (its "
-                         "reward needs a pointing pose for any (x, y)); accepted with a "
-                         "placement: 'touch', 'push'")
+    if velocity is not None and placement is None:
+        raise ValueError("velocity: a moving target needs a placement (e.g. "
+                         "placement.moving(key, speed)); accepted: None without one")
     i32 = jnp.int32
-    return Task(action=jnp.asarray(a, i32), position=jnp.asarray(p, i32),
-                layout=jnp.asarray(lay, i32), placement=placed)
+    task = Task(action=jnp.asarray(a, i32), position=jnp.asarray(p, i32),
+                layout=jnp.asarray(lay, i32), placement=placed,
+                target_xy=_vector(target_xy, "target_xy"), velocity=_vector(velocity, "velocity"))
+    _check_task(task, tasks.get(task_set).n_actions)
+    return task
+
+
+def _vector(value: Any, field: str) -> jax.Array | None:
+    """An optional float32 ``[2]`` field of a task, checked (finite, shape)."""
+    if value is None:
+        return None
+    arr = np.asarray(value, np.float64)
+    if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{field}: expected two finite numbers (x, y), got {arr.tolist()}")
+    return jnp.asarray(arr, jnp.float32)
 
 
 def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
@@ -251,8 +277,19 @@ def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
             raise ValueError(f"task.{field}: expected integers, got dtype {arr.dtype}")
         if arr.size and (arr.min() < 0 or arr.max() >= n):
             raise ValueError(f"task.{field}: values must be in 0..{n - 1}, got {arr}")
-    if task.placement is not None and not isinstance(task.placement, jax.core.Tracer):
-        free.check(task.placement, "task.placement")
+    concrete = lambda v: v is not None and not isinstance(v, jax.core.Tracer)  # noqa: E731
+    if concrete(task.placement):
+        # a moving target's neighbours may be parked out of reach (placement.moving)
+        moving = task.velocity is not None and concrete(task.position) and np.ndim(
+            task.position) == 0
+        reach = (int(task.position),) if moving else (0, 1, 2)
+        free.check(task.placement, "task.placement", reach=reach)
+    for field in ("target_xy", "velocity"):
+        v = getattr(task, field)
+        if concrete(v):
+            arr = np.asarray(v)
+            if arr.shape[-1:] != (2,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"task.{field}: expected finite (x, y) pairs, got {arr.tolist()}")
 
 
 # ------------------------------------------------------------------------- joint scaling
@@ -295,6 +332,7 @@ class Env:
         self._range = jnp.asarray(idx.joint_range, jnp.float32)
         self._home_scaled = scale_joints(jnp.asarray(np.radians(scene.HOME_POSE_DEG),
                                                      jnp.float32))
+        self._dt = float(scene.model().opt.timestep) * config.substeps  # seconds per RL step
 
     # ------------------------------------------------------------------ helpers
     def _place(self, task: Task) -> jax.Array:
@@ -308,22 +346,38 @@ class Env:
     def _objects(self, qpos: jax.Array) -> jax.Array:
         return qpos[self._idx.object_qpos[:, :3]]  # [shape, 3]
 
+    def _target_units(self, task: Task, object_start: jax.Array) -> jax.Array:
+        """The observation's target part: the position one-hot, or the target's
+        coordinates (the task's ``target_xy``, else where the target is meant to be)."""
+        if self.tasks.target_obs == "position":
+            return jax.nn.one_hot(task.position, tasks.N_POSITIONS)
+        target_shape = self._slot_shape[task.layout, task.position]
+        xy = object_start[target_shape, :2] if task.target_xy is None else task.target_xy
+        return free.normalise(xy)
+
     def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams):
-        """Observation, reward and per-step metrics of a physics state."""
+        """Observation, reward and per-step metrics of a physics state (``object_start``:
+        where each object is meant to be -- where it stood at reset, or a moving target's
+        point on its path)."""
         joints = scale_joints(qpos[self._idx.arm_qpos])
         contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
         obs = jnp.concatenate([
             joints, jnp.any(contacts).astype(jnp.float32)[None],
             jax.nn.one_hot(task.action, self.tasks.n_actions),
-            jax.nn.one_hot(task.position, tasks.N_POSITIONS)
+            self._target_units(task, object_start)
         ])
         target_shape = self._slot_shape[task.layout, task.position]
+        if task.placement is None:
+            pose = self._pointing[task.position]
+        else:  # the pointing map, interpolated at where the target is meant to be
+            pose = scale_joints(free.pointing_pose(object_start[target_shape, :2]))
         palm = sensordata[self._idx.sensor_palm_pos]
         is_target = jnp.arange(3) == target_shape
         moved = jnp.linalg.norm(self._objects(qpos) - object_start, axis=1)  # [shape]
         terms = {
-            "point_l1": jnp.sum(jnp.abs(joints - self._pointing[task.position])),
+            "point_l1": jnp.sum(jnp.abs(joints - pose)),
             "palm_target_dist": jnp.linalg.norm(palm - object_start[target_shape]),
+            "palm_target_now": jnp.linalg.norm(palm - self._objects(qpos)[target_shape]),
             "touched_target": jnp.any(contacts & is_target).astype(jnp.float32),
             "touched_other": jnp.any(contacts & ~is_target).astype(jnp.float32),
             "target_moved": moved[target_shape],
@@ -412,9 +466,9 @@ class Env:
         action = jnp.where(nan, 0.0, action)
         target = scale_joints(state.qpos[self._idx.arm_qpos]) + params.action_scale * action
         ctrl = jnp.clip(unscale_joints(target), self._range[:, 0], self._range[:, 1])
-        qpos, qvel, sensordata = self._physics_step(state.qpos, state.qvel, ctrl, ~state.done)
-        obs, reward, terms = self._evaluate(qpos, sensordata, state.task, state.object_start,
-                                            params)
+        qpos, qvel, object_start = self._slide(state)
+        qpos, qvel, sensordata = self._physics_step(qpos, qvel, ctrl, ~state.done)
+        obs, reward, terms = self._evaluate(qpos, sensordata, state.task, object_start, params)
         step = state.step + 1
         wrong_since = jnp.where((state.wrong_since < 0) & terms["wrong_moved"], step,
                                 state.wrong_since)
@@ -424,12 +478,31 @@ class Env:
         metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
         new = state.replace(
             qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=ended, step=step,
-            wrong_since=wrong_since, sensordata=sensordata, metrics=metrics,
-            info=self._info(sensordata, ctrl),
+            wrong_since=wrong_since, object_start=object_start, sensordata=sensordata,
+            metrics=metrics, info=self._info(sensordata, ctrl),
         )
         # a finished episode is absorbing: its state stays as it ended (and on the C backend
         # its physics is not run at all)
         return jax.tree.map(lambda n, o: jnp.where(state.done, o, n), new, state)
+
+    def _slide(self, state: State) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """A moving target's next point on its path (stopped at the reachable region's
+        border): the target is set there, at rest, before the physics step, and becomes
+        where it is meant to be. Returns (qpos, qvel, object_start)."""
+        task = state.task
+        if task.velocity is None:
+            return state.qpos, state.qvel, state.object_start
+        shape = self._slot_shape[task.layout, task.position]
+        lo = jnp.array([free.REACH_X[0], free.REACH_Y[0]], jnp.float32)
+        hi = jnp.array([free.REACH_X[1], free.REACH_Y[1]], jnp.float32)
+        here = state.object_start[shape, :2]
+        there = jnp.clip(here + task.velocity * self._dt, jnp.minimum(lo, here),
+                         jnp.maximum(hi, here))
+        obj_qpos = jnp.asarray(self._idx.object_qpos)[shape]
+        obj_dof = jnp.asarray(self._idx.object_dof)[shape]
+        qpos = state.qpos.at[obj_qpos[:2]].set(there)
+        qvel = state.qvel.at[obj_dof].set(0.0)
+        return qpos, qvel, state.object_start.at[shape, :2].set(there)
 
     def with_episode_length(self, steps: int) -> Env:
         """This env with episodes of ``steps`` steps, sharing its physics backend and tables
@@ -448,13 +521,13 @@ class Env:
     def set_task(self, state: State, task: Task) -> State:
         """Replace the goal mid-episode (Fig 13): the arm and objects stay where they are.
 
-        The observation's action/position units switch at once; rewards from the next step on
+        The observation's action/target units switch at once; rewards from the next step on
         refer to the new task, measured from where the objects stood at reset.
         """
         _check_task(task, self.tasks.n_actions)
         ts = self.tasks
         obs = state.obs.at[ts.obs_action].set(jax.nn.one_hot(task.action, ts.n_actions))
-        obs = obs.at[ts.obs_position].set(jax.nn.one_hot(task.position, tasks.N_POSITIONS))
+        obs = obs.at[ts.obs_target].set(self._target_units(task, state.object_start))
         return state.replace(task=task, obs=obs)
 
 

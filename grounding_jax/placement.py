@@ -15,6 +15,7 @@ paper's three slots lie on its edge): ``REACH_X`` x ``REACH_Y``. Centres are at 
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -32,6 +33,10 @@ MIN_SPACING = 0.09
 #: About 1.3% of uniform triples do, so 1024 candidates all fail with probability ~2e-6;
 #: then the paper's fixed slots are used.
 CANDIDATES = 1024
+#: Half-size of the table top (metres): objects out of reach must still stand on it.
+TABLE_HALF = 0.6
+#: Where a moving target's neighbours stand, out of reach on the far right (x, y; metres).
+PARKED = ((-0.24, 0.40), (-0.24, 0.49))
 _TOL = 1e-6  # float32 round-off allowed at the borders
 
 
@@ -47,13 +52,17 @@ def region_text() -> str:
             f"centres >= {MIN_SPACING} m apart, rows ordered left to right (increasing y)")
 
 
-def check(placement: Any, field: str = "placement") -> np.ndarray:
+def check(placement: Any, field: str = "placement", reach: tuple[int, ...] = (0, 1, 2)
+          ) -> np.ndarray:
     """Validate a placement; return it as float32 ``[3, 3]`` (a missing yaw column is 0).
 
     Args:
         placement: ``[3, 2]`` (x, y) or ``[3, 3]`` (x, y, yaw) for the left, middle and
             right object; or a batch ``[..., 3, 2|3]``.
         field: the name the error messages use.
+        reach: the slots that must lie in the reachable region (the others only on the
+            table, within ``TABLE_HALF`` of the origin: a moving target's scene parks its
+            neighbours out of reach, see :func:`moving`).
 
     Raises:
         ValueError: naming the bad value and the allowed region (NaN or infinite values, a
@@ -67,8 +76,12 @@ def check(placement: Any, field: str = "placement") -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{field}: values must be finite numbers, got {arr.tolist()}")
     xy = arr[..., :2]
+    far = np.abs(xy) > TABLE_HALF
+    if np.any(far):
+        raise ValueError(f"{field}: {float(xy[far][0]):.4f} m lies off the table (|x|, |y| <= "
+                         f"{TABLE_HALF} m); allowed: {region_text()}")
     for axis, (lo, hi), name in ((0, REACH_X, "x"), (1, REACH_Y, "y")):
-        v = xy[..., axis]
+        v = xy[..., list(reach), axis]
         bad = (v < lo - _TOL) | (v > hi + _TOL)
         if np.any(bad):
             raise ValueError(f"{field}: {name} = {float(v[bad][0]):.4f} m lies off the "
@@ -111,3 +124,61 @@ def free_joint_qpos(placement: jax.Array) -> jax.Array:
     zeros = jnp.zeros_like(half)
     quat = jnp.concatenate([jnp.cos(half), zeros, zeros, jnp.sin(half)], axis=1)
     return jnp.concatenate([placement[:, :2], z, quat], axis=1)
+
+
+def normalise(xy: jax.Array) -> jax.Array:
+    """Table coordinates (metres, ``[..., 2]``) -> [-1, 1] over the reachable region (the
+    actor's target units in the ``"free"`` task set)."""
+    lo = jnp.array([REACH_X[0], REACH_Y[0]], jnp.float32)
+    hi = jnp.array([REACH_X[1], REACH_Y[1]], jnp.float32)
+    return 2.0 * (xy - lo) / (hi - lo) - 1.0
+
+
+# ------------------------------------------------------------------------ the pointing map
+POINTING_MAP = scene.ASSETS / "pointing_map.npz"
+
+
+@functools.lru_cache(maxsize=1)
+def pointing_map() -> dict[str, np.ndarray]:
+    """The pointing poses solved on a 1 cm grid over the region and a 1 cm margin
+    (``assets/make_pointing_map.py``): ``x`` [nx], ``y`` [ny], ``joints`` [nx, ny, 4]
+    (radians; a cubic fit to the searched poses, which zigzag: ``raw_joints``), ``aim_deg``
+    [nx, ny] (how far the palm's normal misses the object's centre)."""
+    with np.load(POINTING_MAP) as f:
+        return {k: f[k] for k in f.files}
+
+
+def pointing_pose(xy: jax.Array) -> jax.Array:
+    """The pointing pose (radians, ``[4]``) for an object at ``xy`` (metres): bilinear
+    interpolation of the map's four surrounding nodes (clamped at the map's border). Pure,
+    ``jit``- and ``vmap``-able."""
+    m = pointing_map()
+    gx, gy = jnp.asarray(m["x"]), jnp.asarray(m["y"])
+    joints = jnp.asarray(m["joints"])
+    fx = jnp.clip((xy[0] - gx[0]) / (gx[1] - gx[0]), 0.0, gx.shape[0] - 1.0)
+    fy = jnp.clip((xy[1] - gy[0]) / (gy[1] - gy[0]), 0.0, gy.shape[0] - 1.0)
+    i = jnp.minimum(jnp.floor(fx).astype(jnp.int32), gx.shape[0] - 2)
+    j = jnp.minimum(jnp.floor(fy).astype(jnp.int32), gy.shape[0] - 2)
+    tx, ty = fx - i, fy - j
+    return ((1 - tx) * (1 - ty) * joints[i, j] + tx * (1 - ty) * joints[i + 1, j]
+            + (1 - tx) * ty * joints[i, j + 1] + tx * ty * joints[i + 1, j + 1])
+
+
+# ------------------------------------------------------------------------ a moving target
+def moving(key: jax.Array, speed: Any) -> tuple[jax.Array, jax.Array]:
+    """A scene for a target that slides: ``(placement [3, 3], velocity [2])``.
+
+    The target (the left slot) starts at a random x in the region and y within 2 cm of the
+    region's left edge and slides right (+y) at ``speed`` m/s until the region's right edge
+    (``Env.step`` stops it there): 20-22 cm of path. Its neighbours are parked out of reach
+    (:data:`PARKED`), so the arm that follows it meets nothing on the way. Pure and
+    ``vmap``-able over keys and speeds.
+    """
+    k_x, k_y, k_yaw = jax.random.split(key, 3)
+    x = jax.random.uniform(k_x, (), jnp.float32, REACH_X[0], REACH_X[1])
+    y = jax.random.uniform(k_y, (), jnp.float32, REACH_Y[0], REACH_Y[0] + 0.02)
+    parked = jnp.asarray(PARKED, jnp.float32)
+    rows = jnp.concatenate([jnp.stack([x, y])[None], parked])
+    yaw = jax.random.uniform(k_yaw, (3, 1), jnp.float32, 0.0, 2.0 * jnp.pi)
+    placement = jnp.concatenate([rows, yaw], axis=1)
+    return placement, jnp.stack([jnp.zeros((), jnp.float32), jnp.asarray(speed, jnp.float32)])

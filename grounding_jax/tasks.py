@@ -8,12 +8,16 @@ by name (``EnvConfig(task_set=...)``, ``CaclaConfig(task_set=...)``,
 ``ESNConfig(task_set=...)``), so configs stay plain JSON.
 
 Observation (``obs_size``; 11 for the paper): the 4 arm joints (scaled to [-1, 1]), the touch
-bit, the action one-hot, the position one-hot. Action (``action_size`` = 4): the change of the
-4 scaled joints.
+bit, the action one-hot, then where the target is: the position one-hot (the paper's,
+``target_obs="position"``) or its table coordinates (x, y) scaled to [-1, 1] over the
+reachable region (``target_obs="xy"``: the ``"free"`` task set, for objects placed anywhere;
+see :mod:`grounding_jax.placement`). Action (``action_size`` = 4): the change of the 4 scaled
+joints.
 
 Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
 joints to the position's stored pointing pose; ``palm_target_dist``: metres from the palm to
-the target's start; ``touched_target`` / ``touched_other``: 0/1) and the env's traced params.
+the target's start; ``palm_target_now``: ... to where the target is now; ``touched_target`` /
+``touched_other``: 0/1) and the env's traced params.
 Success rules judge one greedy episode from the quantities ``al_experiments.episode_success``
 measures (``final_point_l1``, ``point_l1_range``, ``touched_late``, ``target_moved``; an
 episode that moved a wrong object fails whatever the rule says).
@@ -33,6 +37,8 @@ SHAPES = ("box", "cylinder", "sphere")
 COLOURS = ("red", "green", "blue")
 #: the words that name a target: a shape or a colour
 TARGET_WORDS = (*SHAPES, *COLOURS)
+#: How the observation says where the target is: a position one-hot or its coordinates.
+TARGET_OBS = ("position", "xy")
 N_JOINTS = 4
 N_POSITIONS = len(POSITIONS)
 N_WORDS = len(TARGET_WORDS)
@@ -102,15 +108,21 @@ class TaskSet:
     Attributes:
         name: the key it is registered under.
         actions: the actions, in the order of the observation's and the AN's action units.
+        target_obs: ``"position"`` (the paper: a left/middle/right one-hot) or ``"xy"`` (the
+            target's table coordinates, scaled to [-1, 1] over the reachable region).
     """
 
     name: str
     actions: tuple[Action, ...]
+    target_obs: str = "position"
 
     def __post_init__(self) -> None:
         names = self.action_names
         if not names or len(set(names)) != len(names):
             raise ValueError(f"actions: need at least one action and unique names, got {names}")
+        if self.target_obs not in TARGET_OBS:
+            raise ValueError(f"target_obs: unknown value {self.target_obs!r}; accepted values: "
+                             f"{TARGET_OBS}")
 
     @property
     def action_names(self) -> tuple[str, ...]:
@@ -126,13 +138,19 @@ class TaskSet:
         return slice(N_JOINTS + 1, N_JOINTS + 1 + self.n_actions)
 
     @property
+    def obs_target(self) -> slice:
+        """Where the target's position (one-hot or coordinates) lies in the observation."""
+        n = N_POSITIONS if self.target_obs == "position" else 2
+        return slice(self.obs_action.stop, self.obs_action.stop + n)
+
+    @property
     def obs_position(self) -> slice:
-        """Where the position one-hot lies in the observation."""
-        return slice(self.obs_action.stop, self.obs_action.stop + N_POSITIONS)
+        """Where the position one-hot lies in the observation (``obs_target``)."""
+        return self.obs_target
 
     @property
     def obs_size(self) -> int:
-        return self.obs_position.stop
+        return self.obs_target.stop
 
     @property
     def action_size(self) -> int:
@@ -154,15 +172,50 @@ class TaskSet:
 
 
 PAPER = TaskSet("paper", (POINT, TOUCH, PUSH))
-TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER}
+
+
+def _avoid(t: Terms, params: Any) -> jax.Array:
+    """``touch_other_penalty`` while the arm touches a non-target object or one has moved."""
+    return jnp.where((t["touched_other"] > 0) | t["wrong_moved"], params.touch_other_penalty,
+                     0.0)
+
+
+def _free_point_reward(t: Terms, params: Any) -> jax.Array:
+    return -t["point_l1"] + _avoid(t, params)
+
+
+def _free_touch_reward(t: Terms, params: Any) -> jax.Array:
+    # the palm's distance to the target until it touches it (then 0: pressing on gains
+    # nothing), and 10x how far the target was moved: touch it, do not push it
+    reach = jnp.where(t["touched_target"] > 0, 0.0, t["palm_target_now"])
+    return -reach - 10.0 * t["target_moved"] + _avoid(t, params)
+
+
+def _free_push_reward(t: Terms, params: Any) -> jax.Array:
+    return -t["palm_target_dist"] + _avoid(t, params)
+
+
+#: For objects placed anywhere: the actor is told the target's coordinates instead of its slot
+#: (the paper's proposed fix for its touch and push troubles). The success rules are the
+#: paper family's; the rewards differ in two ways, both measured (README "Beyond the paper"):
+#: every action pays ``touch_other_penalty`` while the arm touches a non-target object (with
+#: objects anywhere the actor cannot learn fixed detours around its neighbours, and with
+#: gamma 0 knocking one costs nothing else), and touch pays minus the palm's distance to where
+#: the target is now (not where it stood: pushing it away and taking its place paid) with no
+#: penalty for touching it (which made a precise actor hover).
+FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
+                        Action("touch", _free_touch_reward, _touch_success),
+                        Action("push", _free_push_reward, _push_success)), target_obs="xy")
+TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER, FREE.name: FREE}
 
 
 def register(task_set: TaskSet) -> TaskSet:
     """Make ``task_set`` available by its name to the configs (replacing one of that name,
-    except the paper's, which stays as it is). Returns it."""
-    if task_set.name == PAPER.name and task_set is not PAPER:
-        raise ValueError(f"task_set: the name {PAPER.name!r} is the paper's and cannot be "
-                         f"replaced; choose another name")
+    except the built-in "paper" and "free", which stay as they are). Returns it."""
+    for fixed in (PAPER, FREE):
+        if task_set.name == fixed.name and task_set is not fixed:
+            raise ValueError(f"task_set: the name {fixed.name!r} is built in and cannot be "
+                             f"replaced; choose another name")
     TASK_SETS[task_set.name] = task_set
     return task_set
 

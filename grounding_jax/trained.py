@@ -8,6 +8,14 @@
     robot.al.act(obs)                              # the greedy actor's move for an observation
     out = robot.perform("push", "red", layout=3)   # find it, do it, name it
     out["named"]                                   # ("push", "red")
+    out = robot.perform("push", "red", layout=3, placement="random", key=jax.random.key(1))
+    out["xy"], out["true_xy"]                      # the continuous TL's estimate, the truth
+
+With ``placement`` (objects anywhere; needs the modules of the free family, which
+``train.py`` saves beside the paper's) the robot renders the scene with its eye camera, the
+continuous TL (:mod:`grounding_jax.tl_xy`) reads the target's coordinates from it, and the
+free family's actor acts on them; naming is not done there (no namer is trained for the free
+actor yet: ``named`` is None).
 
 A checkpoint is refused (:class:`CheckpointError`) when it was written by another package
 version, when its config is not one this version can build, or when its arrays do not match
@@ -25,8 +33,9 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from grounding_jax import al, cacla, esn, learners, scene, tasks, tl, tl_data
+from grounding_jax import al, cacla, esn, learners, scene, tasks, tl, tl_data, tl_xy
 from grounding_jax.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, make_task
 
@@ -109,16 +118,37 @@ class TrainedAN:
 
 
 @dataclasses.dataclass(frozen=True)
+class TrainedFree:
+    """The free family's modules: the continuous TL and an actor told the target's (x, y)."""
+
+    xy_params: tl_xy.XYParams
+    xy_config: tl_xy.XYConfig
+    al: TrainedAL
+    env_config: EnvConfig
+
+    def localize(self, rgb: np.ndarray, layout: int, word: str) -> np.ndarray:
+        """The target's table coordinates (metres, ``[2]``) from an eye-camera image of
+        scene ``layout``, for the object ``word`` names."""
+        w = tl_data.word_index(word)
+        bitmap = jnp.asarray(tl_xy.bitmap(rgb))
+        return np.asarray(tl_xy.localize(self.xy_params, bitmap,
+                                         jnp.asarray(tl_xy.SYMBOLS[int(layout), w]),
+                                         self.xy_config))
+
+
+@dataclasses.dataclass(frozen=True)
 class Robot:
-    """The three trained modules together, as :func:`load` returns them."""
+    """The three trained modules together, as :func:`load` returns them (``free``: the free
+    family's modules when the checkpoint has them, else None)."""
 
     tl: TrainedTL
     al: TrainedAL
     an: TrainedAN
     env_config: EnvConfig
     config: dict[str, Any]
+    free: TrainedFree | None = None
     # perform's compiled episode, one per step count (filled on first use)
-    _performers: dict[int, Callable] = dataclasses.field(
+    _performers: dict[Any, Callable] = dataclasses.field(
         default_factory=dict, init=False, repr=False, compare=False)
 
     def _performer(self, steps: int) -> Callable:
@@ -135,18 +165,34 @@ class Robot:
         return self._performers[steps]
 
     def perform(self, action: str, word: str, layout: int = 0, steps: int = 100,
-                key: jax.Array | None = None, params: EnvParams = DEFAULT_PARAMS) -> dict:
+                key: jax.Array | None = None, params: EnvParams = DEFAULT_PARAMS,
+                placement: Any = None) -> dict:
         """Hear "<action> <word>" in scene ``layout``: the TL finds the object, the actor
         does the action for ``steps`` steps, the AN names what was done.
 
         The episode is compiled on the first call for a step count; later calls reuse it.
 
+        Args:
+            action, word: the command ("push", "red").
+            layout: which shape and colour stands in each slot (0..35).
+            steps: RL steps to act.
+            key: PRNG key (the reset's; with ``placement="random"`` split once: placement,
+                reset).
+            params: env parameters.
+            placement: None (the paper's slots), ``"random"`` or coordinates ``[3, 2|3]``
+                (see :func:`make_task`): objects anywhere, seen through the eye camera
+                (needs ``self.free``).
+
         Returns:
             ``position`` (the TL's answer), ``true_position``, ``final_reward``,
-            ``trajectory`` (env states after each step) and ``named`` (action, target word).
+            ``trajectory`` (env states after each step) and ``named`` (action, target word);
+            with a placement also ``xy`` (the continuous TL's estimate, metres),
+            ``true_xy``, ``placement`` and ``image`` (the camera frame it saw).
         """
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
+        if placement is not None:
+            return self._perform_free(action, word, layout, steps, key, params, placement)
         bitmap, symbols = _configuration(layout, word)  # read once: localize and name use it
         position = int(self.tl.position(bitmap, symbols))
         task = make_task(action, position, layout, self.env_config.task_set)
@@ -158,6 +204,31 @@ class Robot:
                                                                   tl_data.word_index(word))],
                 "final_reward": float(traj.reward[-1]), "trajectory": traj,
                 "named": _words(named, self.an.config)}
+
+
+    def _perform_free(self, action: str, word: str, layout: int, steps: int,
+                      key: jax.Array | None, params: EnvParams, placement: Any) -> dict:
+        from grounding_jax import vision
+
+        if self.free is None:
+            raise ValueError("placement: these modules hold no free-family robot (train.py "
+                             "saves one); accepted: None")
+        key = jax.random.key(0) if key is None else key
+        k_place, k_reset = jax.random.split(key)
+        cfg = self.free.env_config
+        task = make_task(action, word, layout, cfg.task_set, placement=placement, key=k_place)
+        placed = np.asarray(task.placement)
+        image = vision.eye_renderer().render(int(task.layout), placed)
+        xy = self.free.localize(image, int(task.layout), word)
+        task = task.replace(target_xy=jnp.asarray(xy, jnp.float32))
+        if ("free", steps) not in self._performers:
+            self._performers[("free", steps)] = jax.jit(al.make_eval(cfg, steps))
+        _, traj, _ = self._performers[("free", steps)](self.free.al.agent, k_reset, task,
+                                                       params)
+        slot = int(task.position)
+        return {"position": scene.POSITIONS[slot], "true_position": scene.POSITIONS[slot],
+                "xy": xy, "true_xy": placed[slot, :2], "placement": placed, "image": image,
+                "final_reward": float(traj.reward[-1]), "trajectory": traj, "named": None}
 
 
 def _words(outputs: jax.Array, config: esn.ESNConfig) -> tuple[str, str]:
@@ -178,6 +249,9 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
                                     EnvConfig]:
     """The module configs a checkpoint's config.json describes (CheckpointError if not)."""
     try:
+        if "free" in config:  # checked here so that a bad one is refused before restoring
+            f = config["free"]
+            tl_xy.XYConfig(**f["xy"]), cacla.CaclaConfig(**f["al"]), EnvConfig(**f["env"])
         t = config["tl"]
         tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
         # input scales: 1 (the paper's) in configs written before they existed
@@ -195,7 +269,13 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
 def _like(config: dict):
     tl_cfg, tl_hp, al_cfg, esn_cfg, _ = _configs(config)
     k = jax.random.key(0)
-    return {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
+    like = {}
+    if "free" in config:
+        f = config["free"]
+        like["free"] = {
+            "xy": jax.eval_shape(lambda: tl_xy.init(k, tl_xy.XYConfig(**f["xy"]))),
+            "al": jax.eval_shape(lambda: cacla.init(k, cacla.CaclaConfig(**f["al"])))}
+    return like | {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
             "al": jax.eval_shape(lambda: cacla.init(k, al_cfg)),
             "an": jax.eval_shape(lambda: esn.ESN(
                 w_in=jnp.zeros((esn_cfg.n_in, esn_cfg.n_res)),
@@ -205,7 +285,8 @@ def _like(config: dict):
 
 def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLHyper,
          agent: cacla.Agent, al_config: cacla.CaclaConfig, net: esn.ESN,
-         esn_config: esn.ESNConfig, env_config: EnvConfig, extra: dict | None = None) -> None:
+         esn_config: esn.ESNConfig, env_config: EnvConfig, extra: dict | None = None,
+         free_modules: dict | None = None) -> None:
     """Save the three trained modules (replacing an earlier save there only once the new one
     is complete).
 
@@ -217,6 +298,8 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         net, esn_config: the AN with its fitted readout.
         env_config: the env the agent was trained in.
         extra: JSON-able notes kept in the config (e.g. the profile and seed).
+        free_modules: the free family's robot, optional: ``{"xy_params", "xy_config"
+            (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}``.
     """
     directory = pathlib.Path(directory)
     config = {
@@ -227,11 +310,17 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
                "max_replication": (int(tl_params.w1.shape[0]) - tl.N_PIXELS) // tl.N_SYMBOLS},
         "al": dataclasses.asdict(al_config), "an": dataclasses.asdict(esn_config),
         "env": dataclasses.asdict(env_config), "extra": extra or {}}
+    tree = {"tl": tl_params, "al": agent, "an": net}
+    if free_modules is not None:
+        config["free"] = {"xy": dataclasses.asdict(free_modules["xy_config"]),
+                          "al": dataclasses.asdict(free_modules["al_config"]),
+                          "env": dataclasses.asdict(free_modules["env_config"])}
+        tree["free"] = {"xy": free_modules["xy_params"], "al": free_modules["agent"]}
     tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
     if tmp.exists():
         shutil.rmtree(tmp)
     ck = Checkpointer(tmp, KIND, config, max_to_keep=1)
-    ck.save(0, {"tl": tl_params, "al": agent, "an": net})
+    ck.save(0, tree)
     ck.close()
     old = directory.with_name(f".{directory.name}.old-{os.getpid()}")
     if directory.exists():
@@ -261,6 +350,13 @@ def load(directory: str | pathlib.Path) -> Robot:
         raise CheckpointError(f"{directory}: config.json but no complete checkpoint")
     tree = ck.restore(step, _like(config))
     ck.close()
+    modules_free = None
+    if "free" in config:
+        f = config["free"]
+        modules_free = TrainedFree(
+            xy_params=tree["free"]["xy"], xy_config=tl_xy.XYConfig(**f["xy"]),
+            al=TrainedAL(tree["free"]["al"], cacla.CaclaConfig(**f["al"])),
+            env_config=EnvConfig(**f["env"]))
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
-                 env_config=env_cfg, config=config)
+                 env_config=env_cfg, config=config, free=modules_free)

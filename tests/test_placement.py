@@ -59,8 +59,10 @@ def test_bad_placements_are_refused_naming_the_value_and_the_region(bad, match):
 
 
 def test_make_task_names_the_target_by_word_and_takes_a_placement():
-    with pytest.raises(ValueError, match="action: .point. is not available with a free"):
-        gj.make_task("point", "red", placement=OK)
+    with pytest.raises(ValueError, match="velocity: a moving target needs a placement"):
+        gj.make_task("point", "red", velocity=(0.0, 0.01))
+    with pytest.raises(ValueError, match=r"target_xy: expected two finite numbers"):
+        gj.make_task("point", "red", placement=OK, target_xy=(np.nan, 0.2))
     t = gj.make_task("push", "red", 0)  # layout 0: box/red cylinder/green sphere/blue
     assert int(t.position) == 0 and t.placement is None
     assert int(gj.make_task("touch", "sphere", 0).position) == 2

@@ -1,0 +1,140 @@
+"""The free family: the pointing map, the actor told the target's coordinates, a moving target,
+training on random placements, and the robot that looks before it acts."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import grounding_jax as gj
+from grounding_jax import al, beyond, cacla, esn, ik, scene, tasks, tl, tl_xy, trained
+from grounding_jax import placement as free
+from grounding_jax.env import scale_joints
+
+
+@pytest.fixture(scope="module")
+def env():
+    return gj.make_env(task_set="free")
+
+
+def test_the_pointing_map_is_exact_at_its_nodes_and_aims_between_them():
+    m = free.pointing_map()
+    assert m["joints"].shape == (len(m["x"]), len(m["y"]), 4)
+    # it covers the region (and a margin)
+    assert m["x"][0] <= free.REACH_X[0] and m["x"][-1] >= free.REACH_X[1]
+    assert m["y"][0] <= free.REACH_Y[0] and m["y"][-1] >= free.REACH_Y[1]
+    # smooth enough to learn: nodes 1 cm apart differ by < 0.15 scaled L1 (point's success
+    # allows 0.1), where the raw searches zigzag by up to 0.84
+    scaled = np.asarray(scale_joints(jnp.asarray(m["joints"])))
+    for axis in (0, 1):
+        assert np.abs(np.diff(scaled, axis=axis)).sum(-1).max() < 0.15
+    assert np.abs(np.diff(np.asarray(scale_joints(jnp.asarray(m["raw_joints"]))), axis=1)
+                  ).sum(-1).max() > 0.5  # what the smoothing removed
+    pose = jax.jit(free.pointing_pose)
+    np.testing.assert_allclose(pose(jnp.array([m["x"][3], m["y"][7]])), m["joints"][3, 7],
+                               atol=1e-6)
+    mid = pose(jnp.array([(m["x"][3] + m["x"][4]) / 2, m["y"][7]]))
+    np.testing.assert_allclose(mid, (m["joints"][3, 7] + m["joints"][4, 7]) / 2, atol=1e-6)
+    # between nodes the palm still faces the object from 8-15 cm (the slots' definition)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        xy = np.array([rng.uniform(*free.REACH_X), rng.uniform(*free.REACH_Y)], np.float32)
+        tip, normal = ik.palm_ray(np.asarray(pose(jnp.asarray(xy)), float))
+        to_obj = np.array([*xy, scene.TABLE_Z + scene.OBJECT_HALF]) - tip
+        dist = np.linalg.norm(to_obj)
+        assert np.degrees(np.arccos(to_obj @ normal / dist)) < 3.0
+        assert 0.075 < dist < 0.155
+
+
+def test_the_free_actor_is_told_the_targets_coordinates(env):
+    assert tasks.FREE.obs_size == 10 and env.tasks.obs_target == slice(8, 10)
+    placed = free.sample(jax.random.key(2))
+    s = env.reset(jax.random.key(0), gj.make_task("touch", "right", 5, "free", placement=placed))
+    np.testing.assert_allclose(s.obs[8:], free.normalise(placed[2, :2]), atol=1e-6)
+    assert np.all(np.abs(s.obs[8:]) <= 1.0 + 1e-6)
+    told = gj.make_task("touch", "right", 5, "free", placement=placed, target_xy=(-0.22, 0.2))
+    s = env.reset(jax.random.key(0), told)
+    np.testing.assert_allclose(s.obs[8:], free.normalise(jnp.array([-0.22, 0.2])), atol=1e-6)
+    # the reward still measures the true target: told coordinates change only what it hears
+    truth = env.reset(jax.random.key(0), told.replace(target_xy=None))
+    assert float(s.metrics["palm_target_dist"]) == float(truth.metrics["palm_target_dist"])
+    # point's reward: L1 to the map's pose for where the target stands
+    p = env.reset(jax.random.key(0), gj.make_task("point", "right", 5, "free", placement=placed))
+    want = jnp.sum(jnp.abs(p.obs[:4] - scale_joints(free.pointing_pose(placed[2, :2]))))
+    np.testing.assert_allclose(p.metrics["point_l1"], want, rtol=1e-5)
+
+
+def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):
+    placed, vel = free.moving(jax.random.key(4), 0.03)
+    assert np.all(np.asarray(placed[1:, 0]) == -0.24) and float(placed[1, 1]) >= 0.40
+    task = gj.make_task("point", "left", 0, "free", placement=placed, velocity=vel)
+    step = jax.jit(env.step)
+    s = env.reset(jax.random.key(0), task)
+    y0 = float(s.object_start[0, 1])
+    idx = scene.index()
+    for _ in range(20):
+        s = step(s, jnp.zeros(4))
+    dt = float(scene.model().opt.timestep) * env.config.substeps
+    assert np.isclose(float(s.object_start[0, 1]), y0 + 20 * 0.03 * dt, atol=1e-5)
+    assert abs(float(s.qpos[idx.object_qpos[0, 1]]) - float(s.object_start[0, 1])) < 2e-3
+    np.testing.assert_allclose(s.obs[8:], free.normalise(s.object_start[0, :2]), atol=1e-6)
+    fast = s.replace(task=s.task.replace(velocity=jnp.array([0.0, 5.0])))
+    fast = step(fast, jnp.zeros(4))
+    assert np.isclose(float(fast.object_start[0, 1]), free.REACH_Y[1])  # stopped at the border
+    # parked neighbours are accepted only for a moving target
+    with pytest.raises(ValueError, match="lies off the reachable region"):
+        gj.make_task("point", "left", 0, "free", placement=placed)
+
+
+def test_bad_free_settings_are_refused_by_name():
+    with pytest.raises(ValueError, match="placement: unknown value 'anywhere'"):
+        al.ALConfig(placement="anywhere")
+    with pytest.raises(ValueError, match="target_obs: unknown value 'polar'"):
+        tasks.TaskSet("polar", tasks.PAPER.actions, target_obs="polar")
+    with pytest.raises(ValueError, match="'free' is built in"):
+        tasks.register(tasks.TaskSet("free", tasks.PAPER.actions))
+    with pytest.raises(ValueError, match="placement: these modules hold no free-family robot"):
+        trained.Robot(None, None, None, gj.EnvConfig(), {}).perform("push", "red",
+                                                                   placement="random")
+
+
+def test_training_draws_a_placement_per_episode():
+    cfg = beyond.config(0, 3)
+    parts = al._Parts(cfg)
+    a, _, _ = parts.draw(jax.random.key(0))
+    b, _, _ = parts.draw(jax.random.key(1))
+    free.check(np.stack([a.placement, b.placement]))
+    assert not np.array_equal(a.placement, b.placement)
+    paper = al._Parts(al.ALConfig(phase1_episodes=0, phase2_episodes=3)).draw(jax.random.key(0))
+    assert paper[0].placement is None and int(paper[0].action) == int(a.action)
+
+
+def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer):
+    k = jax.random.key(0)
+    xy_cfg = tl_xy.XYConfig(hidden=8, replication=2)
+    modules = {"xy_params": tl_xy.init(k, xy_cfg), "xy_config": xy_cfg,
+               "agent": cacla.init(k, cacla.CaclaConfig(task_set="free")),
+               "al_config": cacla.CaclaConfig(task_set="free"),
+               "env_config": beyond.env_config()}
+    tl_cfg = tl.TLConfig(max_hidden=5, max_replication=1)
+    tl_hp = tl.TLHyper(hidden=5, replication=1)
+    trained.save(tmp_path / "m", tl.init(k, tl_hp, tl_cfg), tl_hp,
+                 cacla.init(k, cacla.CaclaConfig()), cacla.CaclaConfig(),
+                 esn.init(k), esn.ESNConfig(), gj.EnvConfig(), free_modules=modules)
+    robot = gj.load(tmp_path / "m")
+    assert robot.free is not None and robot.free.xy_config == xy_cfg
+    for a, b in zip(jax.tree.leaves((robot.free.al.agent, robot.free.xy_params)),
+                    jax.tree.leaves((modules["agent"], modules["xy_params"])), strict=True):
+        np.testing.assert_array_equal(a, b)
+    out = robot.perform("push", "red", 4, steps=3, placement="random", key=jax.random.key(5))
+    assert out["trajectory"].reward.shape == (3,) and out["xy"].shape == (2,)
+    assert out["image"].ndim == 3 and out["named"] is None
+    placed = np.asarray(out["placement"])
+    free.check(placed)
+    np.testing.assert_array_equal(out["true_xy"], placed[scene.POSITIONS.index(
+        out["true_position"]), :2])
+    # what the actor heard is the TL's estimate, not the truth
+    np.testing.assert_allclose(out["trajectory"].obs[0, 8:], free.normalise(out["xy"]),
+                               atol=1e-5)
