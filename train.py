@@ -39,8 +39,9 @@ PROFILES = {
               "an_seeds": 3, "an_tl_epochs": 200,
               # beyond the paper, small: the continuous TL; the free family's robot
               "xy_seeds": 1, "xy_scenes": 6000, "xy_hidden": 50, "xy_steps": 4000,
-              "free_seeds": 2, "free_phase1": 50, "free_phase2": 100, "free_placements": 4,
-              "free_eyes_placements": 2, "moving_scenes": 2},
+              "free_seeds": 2, "free_phase1": 30, "free_phase2": 60, "free_placements": 2,
+              "free_eyes_placements": 1, "moving_scenes": 1, "free_an_scenes": 3,
+              "free_an_seeds": 1},
     "paper": {"tl_epochs": 600, "tl_seeds": 10,
               "tl_hidden": _toml_grid("fig6_tl_hidden", "hidden"),
               "tl_replication": _toml_grid("fig7_tl_replication", "replication"),
@@ -51,7 +52,8 @@ PROFILES = {
               "an_seeds": 5, "an_tl_epochs": 600,
               "xy_seeds": 3, "xy_scenes": 18000, "xy_hidden": 200, "xy_steps": 60000,
               "free_seeds": 8, "free_phase1": 150, "free_phase2": 1850, "free_placements": 40,
-              "free_eyes_placements": 20, "moving_scenes": 16},
+              "free_eyes_placements": 20, "moving_scenes": 16, "free_an_scenes": 45,
+              "free_an_seeds": 5},
 }
 #: the AL sweeps train.py runs (Figs 8, 9), with each profile's changes to the files
 AL_SWEEPS = {
@@ -84,6 +86,9 @@ def _settings(profile: str, overrides: list[str]) -> dict:
         if min(parsed) < low:
             raise ValueError(f"--set {key}: values must be >= {low}, got {value!r}")
         settings[key] = parsed if isinstance(settings[key], list) else parsed[0]
+    if settings["free_an_scenes"] < 3:
+        raise ValueError(f"--set free_an_scenes: at least 3 (the namer splits 2/3 : 1/3 by "
+                         f"scene), got {settings['free_an_scenes']}")
     for part in ("al", "free"):
         if settings[f"{part}_phase1"] + settings[f"{part}_phase2"] < 1:
             raise ValueError(f"--set {part}_phase1/{part}_phase2: together at least one "
@@ -270,10 +275,10 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
     print(f"xy    TL with free placement: held-out error median "
           f"{res['median_cm_median_seed']:.2f} cm, 95th percentile "
           f"{res['p95_cm_median_seed']:.2f} cm (median seed)", flush=True)
-    k_train, k_eyes, k_eyes_eval, k_move = jax.random.split(key_free, 4)
+    k_train, k_eyes, k_eyes_eval, k_move, k_an = jax.random.split(key_free, 5)
     free, agents = B.train(k_train, st["free_seeds"], st["free_phase1"], st["free_phase2"],
                            st["free_placements"], backend=backend,
-                           checkpoints=(st["free_phase1"] + st["free_phase2"]) // 2)
+                           checkpoints=((st["free_phase1"] + st["free_phase2"]) // 2,))
     agent = jax.tree.map(lambda x: x[free["median_agent"]], agents)
     modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent,
                "al_config": CaclaConfig(task_set="free"), "env_config": B.env_config(backend)}
@@ -288,10 +293,13 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
                     "tl_error_cm_median": float(np.median(err)),
                     "tl_error_cm_p95": float(np.quantile(err, 0.95))}
     free["moving"] = B.moving(agent, k_move, out, scenes=st["moving_scenes"], backend=backend)
+    free["an"], (modules["net"], modules["esn_config"]) = B.train_namer(
+        k_an, agent, xy_params, cfg, st["free_an_scenes"], st["free_an_seeds"])
     ba, eb = free["final"]["by_action"], free["eyes"]["by_action"]
     print(f"free  median agent on held-out placements: point {ba['point']:.2f} touch "
           f"{ba['touch']:.2f} push {ba['push']:.2f}; through its eyes (TL): point "
-          f"{eb['point']:.2f} touch {eb['touch']:.2f} push {eb['push']:.2f}", flush=True)
+          f"{eb['point']:.2f} touch {eb['touch']:.2f} push {eb['push']:.2f}; named "
+          f"{free['an']['test']['acc_mean']:.3f} of held-out scenes' sequences", flush=True)
     return {"tl_xy": res, "free": free}, modules
 
 
@@ -306,12 +314,14 @@ def camera_strip(out: pathlib.Path, key) -> dict:
     res = robot.perform("push", "red", layout=layout, placement="random", key=key)
     frames, labels = B.episode_frames(layout, res["placement"], res["trajectory"], every=20)
     frames, labels = [res["image"], *frames], ["what the TL saw", *labels]
+    named = f'; named "{" ".join(res["named"])}"' if res["named"] else ""
     B.strip(frames, labels, out, title=f'"push red": the TL put it at '
             f'({res["xy"][0]:.3f}, {res["xy"][1]:.3f}) m, true '
-            f'({res["true_xy"][0]:.3f}, {res["true_xy"][1]:.3f}) m')
+            f'({res["true_xy"][0]:.3f}, {res["true_xy"][1]:.3f}) m{named}')
     moved = float(res["trajectory"].metrics["target_moved"][-1])
     return {"command": "push red", "layout": layout, "xy": res["xy"].tolist(),
-            "true_xy": res["true_xy"].tolist(), "target_moved_cm": 100 * moved}
+            "true_xy": res["true_xy"].tolist(), "target_moved_cm": 100 * moved,
+            "named": list(res["named"]) if res["named"] else None}
 
 
 def main(argv: list[str] | None = None) -> int:

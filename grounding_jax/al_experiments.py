@@ -195,18 +195,32 @@ def success_table(out: dict[str, jax.Array]) -> dict[str, object]:
 SUCCESS_METRICS = ("point", "touch", "push", "rand_point", "mean")
 
 
+#: Held-out placements of the free family's success rates in sweeps (a fixed key: the same
+#: scenes for every run; training draws its placements from the agents' own keys).
+FREE_EVAL_KEY, FREE_EVAL_PLACEMENTS = 1234, 12
+
+
 def make_success_rates(env: Env | EnvConfig = DEFAULT_ENV, batch: int = 8,
                        layouts: tuple[int, ...] = ALL_LAYOUTS):
     """Build ``rates(agents, key, env_params) -> {name: [agents]}``: each agent's success rate
     per action from home, point from random starts (one per position and layout, within
     ``RANDOM_START_NOISE`` of home), and their mean -- the names of :data:`SUCCESS_METRICS`.
 
+    For an env whose actor is told the target's coordinates (the ``"free"`` task set) the
+    tasks are every slot of :data:`FREE_EVAL_PLACEMENTS` random placements (random layouts)
+    drawn from :data:`FREE_EVAL_KEY` instead of the paper's slots and ``layouts``.
+
     Agents are evaluated ``batch`` at a time (the stacked trajectories of a large batch would
     not fit in memory). ``env_params`` leaves may be per agent (a sweep's traced env fields).
     """
     env = as_env(env)
-    home = make_success(env, layouts)
-    rand = make_success(env, layouts, actions=(0,))
+    if env.tasks.target_obs != "position":
+        k = jax.random.key(FREE_EVAL_KEY)
+        home = make_success(env, batch=free_tasks(k, FREE_EVAL_PLACEMENTS))
+        rand = make_success(env, batch=free_tasks(k, FREE_EVAL_PLACEMENTS, actions=(0,)))
+    else:
+        home = make_success(env, layouts)
+        rand = make_success(env, layouts, actions=(0,))
 
     def rates(agents, key: jax.Array, env_params: EnvParams = DEFAULT_PARAMS
               ) -> dict[str, np.ndarray]:

@@ -114,12 +114,17 @@ def _settle(ok: np.ndarray) -> np.ndarray:
 def train_namer(key: jax.Array, home: dict, rand: dict, train_fraction: float = 2 / 3,
                 config: esn.ESNConfig = DEFAULT_ESN, ridge: float = 0.0) -> dict:
     """One seed: split, init the ESN, fit the readout on the training sequences (home starts,
-    zero initial state), and name train / test / random-start test sequences."""
+    zero initial state), and name train / test / random-start test sequences.
+
+    The split is over ``home["config"]`` (all sequences of a configuration on one side):
+    the paper's 216 (layout, word) configurations, or ``home["n_configs"]`` of them when the
+    data set says so (the free family's scenes)."""
     k_split, k_init, k_x0 = jax.random.split(key, 3)
     n_actions = tasks_lib.get(config.task_set).n_actions
-    perm = np.asarray(jax.random.permutation(k_split, tl_data.N_CONFIGS))
-    n_train = int(round(train_fraction * tl_data.N_CONFIGS))
-    train_cfg = np.zeros(tl_data.N_CONFIGS, bool)
+    n_configs = int(home.get("n_configs", tl_data.N_CONFIGS))
+    perm = np.asarray(jax.random.permutation(k_split, n_configs))
+    n_train = int(round(train_fraction * n_configs))
+    train_cfg = np.zeros(n_configs, bool)
     train_cfg[perm[:n_train]] = True
     tr, te = train_cfg[home["config"]], ~train_cfg[home["config"]]
     net = esn.init(k_init, config)

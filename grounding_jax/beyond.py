@@ -9,17 +9,21 @@ from the simulator while it learns, from the continuous TL :mod:`grounding_jax.t
 robot performs). Point's reward and success use the pointing map (IK poses on a 1 cm grid,
 interpolated inside ``jit``; :func:`placement.pointing_pose`).
 
-The learner's settings are the paper family's shipped ones (``al_experiments.TUNED`` +
-``TUNED_AL``); the rewards are the free family's (see ``tasks.FREE``: every action is
-penalised for touching a non-target object, touch measures the palm to where the target is
-now, without the paper's penalty for touching it).
+The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
+actor's learning rate 0.1); the target's coordinates reach the actor as a population code,
+and the rewards are the free family's (see ``tasks.FREE``: every action is penalised for
+touching a non-target object, touch measures the palm to where the target is now, without the
+paper's penalty for touching it).
 
 - :func:`train` / :func:`success`: agents trained on random placements, judged on held-out
   random placements (fresh draws, random layouts) with the action-learning criteria.
 - :func:`moving`: the target slides at 0-3 cm/s along a 20-22 cm path; the actor told the
   target's current coordinates every step against the same actor told only where it started
   (the paper's setting). Figure ``moving.png`` (like Fig 13, for motion instead of a switch).
-- :func:`strip`: camera frames of one episode of the whole robot (render -> TL -> act).
+- :func:`train_namer`: an ESN that names the free actor's action and target from its hidden
+  layer and the continuous TL's (as the paper's AN does from the paper's actor and TL).
+- :func:`strip`: camera frames of one episode of the whole robot (render -> TL -> act ->
+  name).
 """
 
 from __future__ import annotations
@@ -57,9 +61,15 @@ def config(phase1: int, phase2: int, backend: str = "mujoco") -> al.ALConfig:
                        phase1_episodes=phase1, phase2_episodes=phase2, placement="random")
 
 
+#: The free family's learner settings: the paper family's shipped ones (``al_experiments.TUNED``
+#: + ``TUNED_AL``) but for gamma and the actor's learning rate, chosen on tuning keys and seeds
+#: train.py never reports with (README "Beyond the paper"; ``sweeps/free_al_tuning.toml``).
+FREE_TUNED = {**alx.TUNED, **alx.TUNED_AL, "gamma": 0.3, "actor_lr": 0.1}
+
+
 def hyper() -> al.ALHyper:
-    """The shipped settings (``al_experiments.TUNED`` + ``TUNED_AL``)."""
-    return al.validate(al.hyper(**alx.TUNED, **alx.TUNED_AL))
+    """The free family's shipped settings (:data:`FREE_TUNED`)."""
+    return al.validate(al.hyper(**FREE_TUNED))
 
 
 def make_success(env: Env, key: jax.Array, placements: int):
@@ -111,7 +121,7 @@ def train(key: jax.Array, seeds: int, phase1: int, phase2: int, eval_placements:
            "eval_placements": eval_placements, "success": tables, "final": final,
            "train_s": time.perf_counter() - t,
            "rl_steps": int(np.asarray(metrics["steps"]).sum()), "median_agent": median_agent,
-           "hyper": {**alx.TUNED, **alx.TUNED_AL}}
+           "hyper": FREE_TUNED}
     return res, agents
 
 
@@ -208,6 +218,79 @@ def moving(agent, key: jax.Array, out: pathlib.Path, scenes: int = 16,
     return res
 
 
+# ------------------------------------------------------------------------------- the namer
+def namer_data(agent, xy_params, xy_config, key: jax.Array, scenes: int, steps: int = 100,
+               start_noise: float = 0.0, env: Env | None = None,
+               data: Any = None) -> dict:
+    """Sequences for the free family's action namer, as :func:`an.dataset` makes them for the
+    paper's: for every rendered scene, every target word and every action, the greedy
+    actor's hidden layer at each step beside the continuous TL's hidden layer for that scene
+    and word (:func:`tl_xy.hidden`).
+
+    Args:
+        agent: the free family's actor.
+        xy_params, xy_config: the continuous TL.
+        key: PRNG key (scenes, then the episodes' resets).
+        scenes: scenes to render (random placements and layouts).
+        steps: steps per sequence.
+        start_noise: random arm starts (0: home).
+        env: the free family's env (default :func:`env_config`).
+        data: already rendered scenes (``tl_xy.XYData``) instead of new ones.
+
+    Returns:
+        ``inputs`` [N, steps, actor hidden + TL hidden], ``action``, ``word``, ``config`` (the
+        scene: the namer splits train and test by scene), ``n_configs``, ``data``.
+    """
+    from grounding_jax import an, tl_xy
+    from grounding_jax.env import EnvParams
+
+    k_scene, k_run = jax.random.split(key)
+    if data is None:
+        data = tl_xy.render(*tl_xy.draw_scenes(k_scene, scenes))
+    n_words, n_actions = len(tasks.TARGET_WORDS), tasks.FREE.n_actions
+    scene_i = np.repeat(np.arange(scenes), n_words * n_actions)
+    word = np.tile(np.repeat(np.arange(n_words), n_actions), scenes)
+    action = np.tile(np.arange(n_actions), scenes * n_words)
+    layout = data.layout[scene_i]
+    i32 = jnp.int32
+    batch = Task(action=jnp.asarray(action, i32),
+                 position=jnp.asarray(tl_xy.WORD_SLOT[layout, word], i32),
+                 layout=jnp.asarray(layout, i32), placement=jnp.asarray(data.placement[scene_i]))
+    h = an.actor_sequences(agent, k_run, batch, steps, EnvParams(start_noise=start_noise),
+                           env or Env(env_config()))
+    tl_h = np.asarray(tl_xy.hidden(xy_params, jnp.asarray(data.bitmaps[scene_i]),
+                                   jnp.asarray(tl_xy.SYMBOLS[layout, word]), xy_config))
+    tl_part = np.broadcast_to(tl_h[:, None], (len(scene_i), steps, tl_h.shape[1]))
+    return {"inputs": np.concatenate([h, tl_part], axis=2).astype(np.float32),
+            "action": action, "word": word, "config": scene_i, "n_configs": scenes,
+            "data": data}
+
+
+def train_namer(key: jax.Array, agent, xy_params, xy_config, scenes: int, seeds: int,
+                steps: int = 100, start_noise: float = 0.5) -> tuple[dict, Any]:
+    """The free family's action namer: ESNs (the paper's sizes but for the input) over
+    :func:`namer_data`, ``seeds`` splits 2/3 : 1/3 by scene; named at the last step.
+
+    Returns:
+        (accuracy {train, test, test_random: mean, per seed}, (ESN of seed 0, its config)).
+    """
+    from grounding_jax import an, esn
+
+    k_home, k_rand, k_esn = jax.random.split(key, 3)
+    env = Env(env_config())
+    home = namer_data(agent, xy_params, xy_config, k_home, scenes, steps, 0.0, env)
+    # the same scenes from random arm starts (a random initial reservoir state too)
+    rand = namer_data(agent, xy_params, xy_config, k_rand, scenes, steps, start_noise, env,
+                      data=home["data"])
+    cfg = esn.ESNConfig(n_in=home["inputs"].shape[-1], task_set=tasks.FREE.name)
+    runs = [an.train_namer(k, home, rand, config=cfg) for k in jax.random.split(k_esn, seeds)]
+    res: dict[str, Any] = {"scenes": scenes, "seeds": seeds, "sequences": len(home["action"])}
+    for name in ("train", "test", "test_random"):
+        accs = [r[name]["acc"] for r in runs]
+        res[name] = {"acc_mean": float(np.mean(accs)), "acc_per_seed": accs}
+    return res, (runs[0]["net"], cfg)
+
+
 # ----------------------------------------------------------------------- the whole robot's eyes
 def eyes_tasks(localize, key: jax.Array, placements: int) -> tuple[Task, np.ndarray]:
     """:func:`al_experiments.free_tasks` with ``target_xy`` from the robot's eyes: each scene
@@ -253,14 +336,15 @@ def strip(frames: list[np.ndarray], labels: list[str], out: pathlib.Path,
 
 def episode_frames(layout: int, placement: np.ndarray, trajectory, every: int
                    ) -> tuple[list[np.ndarray], list[str]]:
-    """Camera frames of an episode's states (every ``every`` steps, and the last)."""
+    """Camera frames of an episode's states, the arm drawn (every ``every`` steps, and the
+    last)."""
     from grounding_jax import vision
 
     r = vision.eye_renderer()
     qpos = np.asarray(trajectory.qpos)
     n = qpos.shape[0]
     picks = sorted(set(range(0, n, every)) | {n - 1})
-    return ([r.render(layout, placement, qpos=qpos[i]) for i in picks],
+    return ([r.render(layout, placement, qpos=qpos[i], arm=True) for i in picks],
             [f"step {i + 1}" for i in picks])
 
 

@@ -91,6 +91,10 @@ class EnvParams:
         action_scale: factor applied to the action before it moves the joints (paper: 1/3).
         touch_other_penalty: added to the touch reward while touching a non-target object.
         touch_target_penalty: added to the touch reward while touching the target.
+        touch_moved_penalty: the free family's touch reward loses this much per metre the
+            target has moved (``tasks.FREE``; the paper family does not use it).
+        touch_bonus: added to the free family's touch reward while the palm touches the
+            target (the paper family does not use it).
         wrong_move_threshold: metres a non-target object may move before it counts as moved.
         wrong_move_extra_steps: steps the episode goes on after a wrong object moved.
         start_noise: half-width (scaled joint units) of the uniform random start around the
@@ -101,6 +105,8 @@ class EnvParams:
     action_scale: Any = 1.0 / 3.0
     touch_other_penalty: Any = -0.5
     touch_target_penalty: Any = -0.3
+    touch_moved_penalty: Any = 10.0
+    touch_bonus: Any = 0.0
     wrong_move_threshold: Any = 0.01
     wrong_move_extra_steps: Any = 3
     start_noise: Any = 0.0
@@ -114,8 +120,8 @@ class EnvParams:
 #: What each field of :class:`EnvParams` accepts (``validate`` and the sweep runner read it).
 PARAM_RULES: dict[str, Rule] = {
     "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
-    "wrong_move_threshold": POSITIVE, "wrong_move_extra_steps": integer_at_least(0),
-    "start_noise": NON_NEGATIVE,
+    "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE, "wrong_move_threshold": POSITIVE,
+    "wrong_move_extra_steps": integer_at_least(0), "start_noise": NON_NEGATIVE,
 }
 
 DEFAULT_PARAMS = EnvParams()
@@ -353,7 +359,7 @@ class Env:
             return jax.nn.one_hot(task.position, tasks.N_POSITIONS)
         target_shape = self._slot_shape[task.layout, task.position]
         xy = object_start[target_shape, :2] if task.target_xy is None else task.target_xy
-        return free.normalise(xy)
+        return free.target_units(xy, self.tasks.target_obs)
 
     def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams):
         """Observation, reward and per-step metrics of a physics state (``object_start``:

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import scene
+from grounding_jax import scene, tasks
 
 #: The reachable region of object centres (robot frame, metres): x (backward), y (right).
 REACH_X = (-0.27, -0.20)
@@ -132,6 +132,30 @@ def normalise(xy: jax.Array) -> jax.Array:
     lo = jnp.array([REACH_X[0], REACH_Y[0]], jnp.float32)
     hi = jnp.array([REACH_X[1], REACH_Y[1]], jnp.float32)
     return 2.0 * (xy - lo) / (hi - lo) - 1.0
+
+
+def population(xy: jax.Array, grid: tuple[int, int]) -> jax.Array:
+    """Table coordinates (metres, ``[2]``) as a population code: a Gaussian bump (width one
+    grid spacing, in units scaled to [-1, 1] over the reachable region) at each of the
+    ``grid[0] x grid[1]`` centres spread evenly over the region, flattened x-major."""
+    u = normalise(xy)
+    cx, cy = jnp.linspace(-1.0, 1.0, grid[0]), jnp.linspace(-1.0, 1.0, grid[1])
+    wx, wy = 2.0 / (grid[0] - 1), 2.0 / (grid[1] - 1)
+    bx = jnp.exp(-0.5 * ((u[0] - cx) / wx) ** 2)
+    by = jnp.exp(-0.5 * ((u[1] - cy) / wy) ** 2)
+    return (bx[:, None] * by[None, :]).ravel()
+
+
+def target_units(xy: jax.Array, target_obs: str) -> jax.Array:
+    """The actor's target units for table coordinates ``xy`` (metres, ``[2]``):
+    :func:`normalise` for ``target_obs="xy"``, :func:`population` on
+    ``tasks.POPULATION_GRID`` for ``"population"`` (see :class:`tasks.TaskSet`)."""
+    if target_obs == "population":
+        return population(xy, tasks.POPULATION_GRID)
+    if target_obs == "xy":
+        return normalise(xy)
+    raise ValueError(f"target_obs: {target_obs!r} has no coordinates; accepted values: "
+                     f"'xy', 'population'")
 
 
 # ------------------------------------------------------------------------ the pointing map

@@ -54,7 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, al_experiments, cacla, env, physics, tl, tl_data
+from grounding_jax import al, al_experiments, cacla, env, physics, tasks, tl, tl_data
 from grounding_jax._checks import Rule
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.checkpoint import Checkpointer, CheckpointError
@@ -112,7 +112,7 @@ _AL_SWEPT = {
                      if n not in ("phase1", "actor_units", "critic_units")),
     "al": tuple(al.HYPER_RULES),  # ALHyper's own
     "env": ("action_scale", "touch_other_penalty", "touch_target_penalty",
-            "start_noise"),  # EnvParams
+            "touch_moved_penalty", "touch_bonus", "start_noise"),  # EnvParams
 }
 
 _FIELDS: dict[str, dict[str, Field]] = {
@@ -129,6 +129,8 @@ _FIELDS: dict[str, dict[str, Field]] = {
         "substeps": _static(env.CONFIG_RULES["substeps"], _EC.substeps),
         "episode_length": _static(env.CONFIG_RULES["episode_length"], _EC.episode_length),
         "random_layout": Field("static", bool, True),
+        # "random": the free family (objects anywhere, the actor told the target's (x, y))
+        "placement": Field("static", str, "fixed", choices=al.PLACEMENTS),
         **_traced_from(_LEARNER.hyper_rules, _LH, _AL_SWEPT["learner"]),
         **_traced_from(al.HYPER_RULES, _DH, _AL_SWEPT["al"]),
         **_traced_from(env.PARAM_RULES, _EP, _AL_SWEPT["env"]),
@@ -380,14 +382,16 @@ def _module_config(spec: SweepSpec, static: dict[str, Any]):
 
 
 def _al_config(pts: list[dict], static: dict[str, Any]) -> al.ALConfig:
+    task_set = tasks.FREE.name if static["placement"] == "random" else tasks.PAPER.name
     return al.ALConfig(
         env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
-                      episode_length=static["episode_length"]),
+                      episode_length=static["episode_length"], task_set=task_set),
         learner=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
                                   critic_hidden=max(p["critic_hidden"] for p in pts),
-                                  var=static["var"]),
+                                  var=static["var"], task_set=task_set),
         phase1_episodes=static["phase1_episodes"],
-        phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"])
+        phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"],
+        placement=static["placement"])
 
 
 def _tl_config(pts: list[dict], static: dict[str, Any]) -> tl.TLConfig:

@@ -9,10 +9,11 @@ by name (``EnvConfig(task_set=...)``, ``CaclaConfig(task_set=...)``,
 
 Observation (``obs_size``; 11 for the paper): the 4 arm joints (scaled to [-1, 1]), the touch
 bit, the action one-hot, then where the target is: the position one-hot (the paper's,
-``target_obs="position"``) or its table coordinates (x, y) scaled to [-1, 1] over the
-reachable region (``target_obs="xy"``: the ``"free"`` task set, for objects placed anywhere;
-see :mod:`grounding_jax.placement`). Action (``action_size`` = 4): the change of the 4 scaled
-joints.
+``target_obs="position"``), or its table coordinates for objects placed anywhere (see
+:mod:`grounding_jax.placement`) -- (x, y) scaled to [-1, 1] over the reachable region
+(``target_obs="xy"``) or as a population code of Gaussian bumps on a 3 x 7 grid over the
+region (``target_obs="population"``: the ``"free"`` task set). Action (``action_size`` = 4):
+the change of the 4 scaled joints.
 
 Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
 joints to the position's stored pointing pose; ``palm_target_dist``: metres from the palm to
@@ -37,8 +38,11 @@ SHAPES = ("box", "cylinder", "sphere")
 COLOURS = ("red", "green", "blue")
 #: the words that name a target: a shape or a colour
 TARGET_WORDS = (*SHAPES, *COLOURS)
-#: How the observation says where the target is: a position one-hot or its coordinates.
-TARGET_OBS = ("position", "xy")
+#: How the observation says where the target is: a position one-hot, its coordinates, or its
+#: coordinates as a population code (Gaussian bumps on a grid over the reachable region).
+TARGET_OBS = ("position", "xy", "population")
+#: The population code's grid: centres along x (depth) and y (across the table).
+POPULATION_GRID = (3, 7)
 N_JOINTS = 4
 N_POSITIONS = len(POSITIONS)
 N_WORDS = len(TARGET_WORDS)
@@ -108,8 +112,10 @@ class TaskSet:
     Attributes:
         name: the key it is registered under.
         actions: the actions, in the order of the observation's and the AN's action units.
-        target_obs: ``"position"`` (the paper: a left/middle/right one-hot) or ``"xy"`` (the
-            target's table coordinates, scaled to [-1, 1] over the reachable region).
+        target_obs: ``"position"`` (the paper: a left/middle/right one-hot), ``"xy"`` (the
+            target's table coordinates, scaled to [-1, 1] over the reachable region) or
+            ``"population"`` (those coordinates as Gaussian bumps on ``POPULATION_GRID``; see
+            :func:`placement.population`).
     """
 
     name: str
@@ -140,7 +146,8 @@ class TaskSet:
     @property
     def obs_target(self) -> slice:
         """Where the target's position (one-hot or coordinates) lies in the observation."""
-        n = N_POSITIONS if self.target_obs == "position" else 2
+        n = {"position": N_POSITIONS, "xy": 2,
+             "population": POPULATION_GRID[0] * POPULATION_GRID[1]}[self.target_obs]
         return slice(self.obs_action.stop, self.obs_action.stop + n)
 
     @property
@@ -186,9 +193,9 @@ def _free_point_reward(t: Terms, params: Any) -> jax.Array:
 
 def _free_touch_reward(t: Terms, params: Any) -> jax.Array:
     # the palm's distance to the target until it touches it (then 0: pressing on gains
-    # nothing), and 10x how far the target was moved: touch it, do not push it
-    reach = jnp.where(t["touched_target"] > 0, 0.0, t["palm_target_now"])
-    return -reach - 10.0 * t["target_moved"] + _avoid(t, params)
+    # nothing), and a penalty on how far the target was moved: touch it, do not push it
+    reach = jnp.where(t["touched_target"] > 0, -params.touch_bonus, t["palm_target_now"])
+    return -reach - params.touch_moved_penalty * t["target_moved"] + _avoid(t, params)
 
 
 def _free_push_reward(t: Terms, params: Any) -> jax.Array:
@@ -196,16 +203,18 @@ def _free_push_reward(t: Terms, params: Any) -> jax.Array:
 
 
 #: For objects placed anywhere: the actor is told the target's coordinates instead of its slot
-#: (the paper's proposed fix for its touch and push troubles). The success rules are the
-#: paper family's; the rewards differ in two ways, both measured (README "Beyond the paper"):
-#: every action pays ``touch_other_penalty`` while the arm touches a non-target object (with
-#: objects anywhere the actor cannot learn fixed detours around its neighbours, and with
-#: gamma 0 knocking one costs nothing else), and touch pays minus the palm's distance to where
-#: the target is now (not where it stood: pushing it away and taking its place paid) with no
-#: penalty for touching it (which made a precise actor hover).
+#: (the paper's proposed fix for its touch and push troubles), as a population code (the
+#: plain scaled (x, y) learned worse: README "Beyond the paper"). The success rules are the
+#: paper family's; the rewards differ in two ways: every action pays ``touch_other_penalty``
+#: while the arm touches a non-target object or one has moved (with objects anywhere no fixed
+#: detour around the neighbours exists), and touch pays minus the palm's distance to where the
+#: target is now until it touches it, then nothing, less ``touch_moved_penalty`` per metre
+#: the target has moved (instead of the paper's penalty for touching it, under which an actor
+#: hovers).
 FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
                         Action("touch", _free_touch_reward, _touch_success),
-                        Action("push", _free_push_reward, _push_success)), target_obs="xy")
+                        Action("push", _free_push_reward, _push_success)),
+               target_obs="population")
 TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER, FREE.name: FREE}
 
 

@@ -286,6 +286,14 @@ def localize(params: XYParams, bitmaps: jax.Array, symbols: jax.Array, config: X
                                             hp.symbol_scale)))
 
 
+def hidden(params: XYParams, bitmaps: jax.Array, symbols: jax.Array, config: XYConfig,
+           hp: XYHyper = DEFAULT_HYPER) -> jax.Array:
+    """The hidden layer ``[..., hidden]`` for bitmaps and symbols (the free family's namer
+    reads it as the TL's "what" input, as the paper's AN reads the TL's)."""
+    x = inputs(bitmaps, symbols, config.replication, hp.symbol_scale)
+    return jax.nn.sigmoid(x @ params.w1 + params.b1)
+
+
 #: the issue's goals for the held-out error (cm)
 GOAL_MEDIAN_CM, GOAL_P95_CM = 1.0, 2.5
 

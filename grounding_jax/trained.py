@@ -14,8 +14,8 @@
 With ``placement`` (objects anywhere; needs the modules of the free family, which
 ``train.py`` saves beside the paper's) the robot renders the scene with its eye camera, the
 continuous TL (:mod:`grounding_jax.tl_xy`) reads the target's coordinates from it, and the
-free family's actor acts on them; naming is not done there (no namer is trained for the free
-actor yet: ``named`` is None).
+free family's actor acts on them, and the free family's namer (an ESN over that actor's and
+that TL's hidden layers) names what was done (``named`` is None for modules saved without it).
 
 A checkpoint is refused (:class:`CheckpointError`) when it was written by another package
 version, when its config is not one this version can build, or when its arrays do not match
@@ -119,21 +119,28 @@ class TrainedAN:
 
 @dataclasses.dataclass(frozen=True)
 class TrainedFree:
-    """The free family's modules: the continuous TL and an actor told the target's (x, y)."""
+    """The free family's modules: the continuous TL, an actor told the target's (x, y), and
+    (when trained) a namer over the two's hidden layers."""
 
     xy_params: tl_xy.XYParams
     xy_config: tl_xy.XYConfig
     al: TrainedAL
     env_config: EnvConfig
+    an: TrainedAN | None = None
+
+    def _inputs(self, rgb: np.ndarray, layout: int, word: str) -> tuple[jax.Array, jax.Array]:
+        w = tl_data.word_index(word)
+        return (jnp.asarray(tl_xy.bitmap(rgb)), jnp.asarray(tl_xy.SYMBOLS[int(layout), w]))
 
     def localize(self, rgb: np.ndarray, layout: int, word: str) -> np.ndarray:
         """The target's table coordinates (metres, ``[2]``) from an eye-camera image of
         scene ``layout``, for the object ``word`` names."""
-        w = tl_data.word_index(word)
-        bitmap = jnp.asarray(tl_xy.bitmap(rgb))
-        return np.asarray(tl_xy.localize(self.xy_params, bitmap,
-                                         jnp.asarray(tl_xy.SYMBOLS[int(layout), w]),
+        return np.asarray(tl_xy.localize(self.xy_params, *self._inputs(rgb, layout, word),
                                          self.xy_config))
+
+    def tl_hidden(self, rgb: np.ndarray, layout: int, word: str) -> jax.Array:
+        """The continuous TL's hidden layer for that image and word (the namer's "what")."""
+        return tl_xy.hidden(self.xy_params, *self._inputs(rgb, layout, word), self.xy_config)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,12 +230,15 @@ class Robot:
         task = task.replace(target_xy=jnp.asarray(xy, jnp.float32))
         if ("free", steps) not in self._performers:
             self._performers[("free", steps)] = jax.jit(al.make_eval(cfg, steps))
-        _, traj, _ = self._performers[("free", steps)](self.free.al.agent, k_reset, task,
-                                                       params)
+        _, traj, hidden = self._performers[("free", steps)](self.free.al.agent, k_reset, task,
+                                                            params)
+        named = None
+        if self.free.an is not None:
+            named = self.free.an.name(hidden, self.free.tl_hidden(image, int(task.layout), word))
         slot = int(task.position)
         return {"position": scene.POSITIONS[slot], "true_position": scene.POSITIONS[slot],
                 "xy": xy, "true_xy": placed[slot, :2], "placement": placed, "image": image,
-                "final_reward": float(traj.reward[-1]), "trajectory": traj, "named": None}
+                "final_reward": float(traj.reward[-1]), "trajectory": traj, "named": named}
 
 
 def _words(outputs: jax.Array, config: esn.ESNConfig) -> tuple[str, str]:
@@ -252,6 +262,8 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
         if "free" in config:  # checked here so that a bad one is refused before restoring
             f = config["free"]
             tl_xy.XYConfig(**f["xy"]), cacla.CaclaConfig(**f["al"]), EnvConfig(**f["env"])
+            if "an" in f:
+                esn.ESNConfig(**f["an"])
         t = config["tl"]
         tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
         # input scales: 1 (the paper's) in configs written before they existed
@@ -275,12 +287,17 @@ def _like(config: dict):
         like["free"] = {
             "xy": jax.eval_shape(lambda: tl_xy.init(k, tl_xy.XYConfig(**f["xy"]))),
             "al": jax.eval_shape(lambda: cacla.init(k, cacla.CaclaConfig(**f["al"])))}
+        if "an" in f:
+            like["free"]["an"] = _esn_like(esn.ESNConfig(**f["an"]))
     return like | {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
-            "al": jax.eval_shape(lambda: cacla.init(k, al_cfg)),
-            "an": jax.eval_shape(lambda: esn.ESN(
-                w_in=jnp.zeros((esn_cfg.n_in, esn_cfg.n_res)),
-                w_res=jnp.zeros((esn_cfg.n_res, esn_cfg.n_res)),
-                w_out=jnp.zeros((esn_cfg.n_res, esn_cfg.n_out))))}
+                   "al": jax.eval_shape(lambda: cacla.init(k, al_cfg)),
+                   "an": _esn_like(esn_cfg)}
+
+
+def _esn_like(cfg: esn.ESNConfig):
+    return jax.eval_shape(lambda: esn.ESN(w_in=jnp.zeros((cfg.n_in, cfg.n_res)),
+                                          w_res=jnp.zeros((cfg.n_res, cfg.n_res)),
+                                          w_out=jnp.zeros((cfg.n_res, cfg.n_out))))
 
 
 def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLHyper,
@@ -299,7 +316,8 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         env_config: the env the agent was trained in.
         extra: JSON-able notes kept in the config (e.g. the profile and seed).
         free_modules: the free family's robot, optional: ``{"xy_params", "xy_config"
-            (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}``.
+            (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}`` and,
+            when a namer was trained for it, ``"net"`` and ``"esn_config"``.
     """
     directory = pathlib.Path(directory)
     config = {
@@ -316,6 +334,9 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
                           "al": dataclasses.asdict(free_modules["al_config"]),
                           "env": dataclasses.asdict(free_modules["env_config"])}
         tree["free"] = {"xy": free_modules["xy_params"], "al": free_modules["agent"]}
+        if free_modules.get("net") is not None:
+            config["free"]["an"] = dataclasses.asdict(free_modules["esn_config"])
+            tree["free"]["an"] = free_modules["net"]
     tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -356,7 +377,8 @@ def load(directory: str | pathlib.Path) -> Robot:
         modules_free = TrainedFree(
             xy_params=tree["free"]["xy"], xy_config=tl_xy.XYConfig(**f["xy"]),
             al=TrainedAL(tree["free"]["al"], cacla.CaclaConfig(**f["al"])),
-            env_config=EnvConfig(**f["env"]))
+            env_config=EnvConfig(**f["env"]),
+            an=TrainedAN(tree["free"]["an"], esn.ESNConfig(**f["an"])) if "an" in f else None)
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
                  env_config=env_cfg, config=config, free=modules_free)

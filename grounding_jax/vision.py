@@ -81,7 +81,7 @@ class EyeRenderer:
         self._rect = mujoco.MjrRect(0, 0, width, height)
 
     def render(self, layout: int, placement: np.ndarray | None = None,
-               qpos: np.ndarray | None = None) -> np.ndarray:
+               qpos: np.ndarray | None = None, arm: bool = False) -> np.ndarray:
         """RGB image ``[height, width, 3]`` uint8 of ``layout`` with the arm at home.
 
         Args:
@@ -90,6 +90,7 @@ class EyeRenderer:
                 :mod:`grounding_jax.placement`).
             qpos: a full physics ``qpos`` (e.g. a frame of an episode) to draw instead of
                 the resting objects; ``layout`` still gives the colours.
+            arm: draw the robot's meshes too (for people; the bitmaps never show the arm).
         """
         m, d = self.model, self.data
         shapes, colours = scene.LAYOUTS[layout]
@@ -102,6 +103,7 @@ class EyeRenderer:
                 placement = free.check(placement)
             d.qpos[:] = scene.place_objects(scene.home_qpos(), layout, placement)
         mujoco.mj_forward(m, d)
+        self._opt.geomgroup[2] = int(arm)  # the robot's visual meshes
         self._ctx.make_current()
         mujoco.mjv_updateScene(m, d, self._opt, None, self._cam, mujoco.mjtCatBit.mjCAT_ALL,
                                self._scn)

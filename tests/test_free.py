@@ -49,14 +49,17 @@ def test_the_pointing_map_is_exact_at_its_nodes_and_aims_between_them():
 
 
 def test_the_free_actor_is_told_the_targets_coordinates(env):
-    assert tasks.FREE.obs_size == 10 and env.tasks.obs_target == slice(8, 10)
+    n = tasks.POPULATION_GRID[0] * tasks.POPULATION_GRID[1]
+    assert tasks.FREE.target_obs == "population"
+    assert tasks.FREE.obs_size == 8 + n and env.tasks.obs_target == slice(8, 8 + n)
+    code = lambda xy: free.target_units(xy, "population")  # noqa: E731
     placed = free.sample(jax.random.key(2))
     s = env.reset(jax.random.key(0), gj.make_task("touch", "right", 5, "free", placement=placed))
-    np.testing.assert_allclose(s.obs[8:], free.normalise(placed[2, :2]), atol=1e-6)
-    assert np.all(np.abs(s.obs[8:]) <= 1.0 + 1e-6)
+    np.testing.assert_allclose(s.obs[8:], code(placed[2, :2]), atol=1e-6)
+    assert np.all((s.obs[8:] > 0) & (s.obs[8:] <= 1.0))
     told = gj.make_task("touch", "right", 5, "free", placement=placed, target_xy=(-0.22, 0.2))
     s = env.reset(jax.random.key(0), told)
-    np.testing.assert_allclose(s.obs[8:], free.normalise(jnp.array([-0.22, 0.2])), atol=1e-6)
+    np.testing.assert_allclose(s.obs[8:], code(jnp.array([-0.22, 0.2])), atol=1e-6)
     # the reward still measures the true target: told coordinates change only what it hears
     truth = env.reset(jax.random.key(0), told.replace(target_xy=None))
     assert float(s.metrics["palm_target_dist"]) == float(truth.metrics["palm_target_dist"])
@@ -79,7 +82,8 @@ def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):
     dt = float(scene.model().opt.timestep) * env.config.substeps
     assert np.isclose(float(s.object_start[0, 1]), y0 + 20 * 0.03 * dt, atol=1e-5)
     assert abs(float(s.qpos[idx.object_qpos[0, 1]]) - float(s.object_start[0, 1])) < 2e-3
-    np.testing.assert_allclose(s.obs[8:], free.normalise(s.object_start[0, :2]), atol=1e-6)
+    np.testing.assert_allclose(s.obs[8:], free.target_units(s.object_start[0, :2],
+                                                            "population"), atol=1e-6)
     fast = s.replace(task=s.task.replace(velocity=jnp.array([0.0, 5.0])))
     fast = step(fast, jnp.zeros(4))
     assert np.isclose(float(fast.object_start[0, 1]), free.REACH_Y[1])  # stopped at the border
@@ -114,10 +118,16 @@ def test_training_draws_a_placement_per_episode():
 def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer):
     k = jax.random.key(0)
     xy_cfg = tl_xy.XYConfig(hidden=8, replication=2)
-    modules = {"xy_params": tl_xy.init(k, xy_cfg), "xy_config": xy_cfg,
-               "agent": cacla.init(k, cacla.CaclaConfig(task_set="free")),
+    free_agent = cacla.init(k, cacla.CaclaConfig(task_set="free"))
+    xy_params = tl_xy.init(k, xy_cfg)
+    # a namer trained for real on 3 rendered scenes (its accuracy is not the point here)
+    named, (net, esn_cfg) = beyond.train_namer(k, free_agent, xy_params, xy_cfg, scenes=3,
+                                               seeds=1, steps=4)
+    assert esn_cfg.n_in == 40 + 8 and named["sequences"] == 3 * 6 * 3
+    assert 0.0 <= named["test"]["acc_mean"] <= 1.0
+    modules = {"xy_params": xy_params, "xy_config": xy_cfg, "agent": free_agent,
                "al_config": cacla.CaclaConfig(task_set="free"),
-               "env_config": beyond.env_config()}
+               "env_config": beyond.env_config(), "net": net, "esn_config": esn_cfg}
     tl_cfg = tl.TLConfig(max_hidden=5, max_replication=1)
     tl_hp = tl.TLHyper(hidden=5, replication=1)
     trained.save(tmp_path / "m", tl.init(k, tl_hp, tl_cfg), tl_hp,
@@ -130,11 +140,55 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
         np.testing.assert_array_equal(a, b)
     out = robot.perform("push", "red", 4, steps=3, placement="random", key=jax.random.key(5))
     assert out["trajectory"].reward.shape == (3,) and out["xy"].shape == (2,)
-    assert out["image"].ndim == 3 and out["named"] is None
+    assert out["image"].ndim == 3
+    assert out["named"][0] in tasks.FREE.action_names and out["named"][1] in tasks.TARGET_WORDS
+    np.testing.assert_array_equal(robot.free.an.net.w_out, net.w_out)
     placed = np.asarray(out["placement"])
     free.check(placed)
     np.testing.assert_array_equal(out["true_xy"], placed[scene.POSITIONS.index(
         out["true_position"]), :2])
     # what the actor heard is the TL's estimate, not the truth
-    np.testing.assert_allclose(out["trajectory"].obs[0, 8:], free.normalise(out["xy"]),
-                               atol=1e-5)
+    np.testing.assert_allclose(out["trajectory"].obs[0, 8:],
+                               free.target_units(out["xy"], "population"), atol=1e-5)
+
+
+def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp_path,
+                                                                             monkeypatch):
+    from grounding_jax import al_experiments, sweep
+
+    monkeypatch.setattr(al_experiments, "FREE_EVAL_PLACEMENTS", 1)  # 9 + 3 episodes per agent
+    spec = sweep.parse_spec({
+        "module": "al", "name": "free_tiny", "seeds": 2, "chunk": 2, "metric": "success_mean",
+        "params": {"phase1_episodes": 1, "phase2_episodes": 1, "actor_hidden": 4,
+                   "critic_hidden": 4, "episode_length": 5, "placement": "random"},
+        "grid": {"gamma": [0.0, 0.3]}})
+    cfg = sweep._module_config(spec, spec.groups()[0][0])
+    assert cfg.placement == "random" and cfg.env.task_set == cfg.learner.task_set == "free"
+    sweep.run(spec, tmp_path, show_progress=False)
+    with np.load(tmp_path / "free_tiny" / "metrics.npz") as f:
+        rates = f["success_point"]
+    assert rates.shape == (4, 1) and np.all((rates >= 0) & (rates <= 1))
+    (_, agents, _), _ = sweep.trained_agents(spec, tmp_path)
+    assert agents.actor.w1.shape[1:] == (tasks.FREE.obs_size, 4)
+    with pytest.raises(sweep.SweepError, match="placement"):
+        sweep.parse_spec({"module": "al", "params": {"placement": "anywhere"},
+                          "grid": {"gamma": [0.0]}})
+
+
+def test_the_population_code_peaks_at_its_centres_and_fills_the_observation():
+    grid = tasks.POPULATION_GRID
+    corner = jnp.array([free.REACH_X[0], free.REACH_Y[0]])
+    code = np.asarray(free.population(corner, grid))
+    assert code.shape == (grid[0] * grid[1],) and code[0] == 1.0 and np.all(code > 0)
+    # one grid spacing along y from the corner: the next centre is at exp(-1/2) there
+    np.testing.assert_allclose(code[1], np.exp(-0.5), rtol=1e-6)
+    ts = tasks.register(tasks.TaskSet("test_population", tasks.FREE.actions,
+                                      target_obs="population"))
+    assert ts.obs_size == 8 + grid[0] * grid[1]
+    env = gj.make_env(task_set=ts.name)
+    placed = free.sample(jax.random.key(3))
+    s = env.reset(jax.random.key(0), gj.make_task("push", "middle", 2, ts.name,
+                                                  placement=placed))
+    np.testing.assert_allclose(s.obs[8:], free.population(placed[1, :2], grid), atol=1e-6)
+    with pytest.raises(ValueError, match="target_obs: 'position' has no coordinates"):
+        free.target_units(placed[1, :2], "position")

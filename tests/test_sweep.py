@@ -152,14 +152,15 @@ def test_chunks_have_one_shape_when_possible():
 def test_every_sweep_file_validates(path):
     spec = sweep.load_spec(path)
     assert spec.seeds >= 5
-    assert spec.figure.startswith("fig") or spec.name == "al_tuning"
+    assert spec.figure.startswith("fig") or spec.name in ("al_tuning", "free_al_tuning")
     assert len(spec.points()) >= 5
 
 
 def test_the_six_paper_sweeps_are_there():
     assert {p.stem for p in SWEEPS} == {"fig6_tl_hidden", "fig7_tl_replication",
                                         "fig8a_critic_lr", "fig8b_critic_hidden",
-                                        "fig9a_actor_lr", "fig9b_actor_hidden", "al_tuning"}
+                                        "fig9a_actor_lr", "fig9b_actor_hidden", "al_tuning",
+                                        "free_al_tuning"}
 
 
 BAD = [

@@ -82,6 +82,19 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert xy["median_cm_median_seed"] < 3.0
     assert "## Beyond the paper" in report and "beyond/tl_xy.png" in report
     assert (tmp_path / "beyond" / "tl_xy.png").stat().st_size > 1000
+    free = data["beyond"]["free"]
+    assert free["seeds"] == 2 and set(free["success"]) == {"45", "90"}
+    for table in (free["final"], free["eyes"]):
+        assert set(table["by_action"]) == {"point", "touch", "push"}
+        assert all(0.0 <= v <= 1.0 for v in table["by_action"].values())
+    assert len(free["moving"]["rows"]) == 2 * 4 * 2  # actions x speeds x robots
+    assert free["an"]["sequences"] == 3 * 6 * 3
+    assert free["an"]["train"]["acc_mean"] > 0.5  # the namer's readout fits its sequences
+    for name in ("moving", "camera_strip"):
+        assert (tmp_path / "beyond" / f"{name}.png").stat().st_size > 1000
+        assert f"beyond/{name}.png" in report
+    assert "### Acting anywhere" in report and "### Naming what it did" in report
+    assert data["beyond"]["strip"]["named"][0] in ("point", "touch", "push")
     assert not list(tmp_path.rglob("*.tmp")) and not list(tmp_path.glob(".modules*"))
     csv = (tmp_path / "metrics.csv").read_text().splitlines()
     assert csv[0] == "key,value" and any(r.startswith("an.train.acc_mean,") for r in csv)
@@ -114,6 +127,17 @@ def test_readme_example_loads_the_trained_robot_and_uses_it(quick, monkeypatch, 
     assert out["named"][0] in ("point", "touch", "push")
 
 
+def test_readme_beyond_example_runs_on_the_committed_modules(monkeypatch):
+    code = _readout_block("**Acting anywhere")
+    assert 'gj.load("results/paper/modules")' in code
+    monkeypatch.chdir(ROOT)
+    scope: dict = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    out = scope["out"]
+    assert out["named"][0] in ("point", "touch", "push") and out["xy"].shape == (2,)
+    assert scope["robot"].free is not None and scope["sliding"].velocity is not None
+
+
 @pytest.mark.parametrize("argv, field", [
     (["--profile", "huge"], "--profile"),
     (["--backend", "ode"], "--backend"),
@@ -122,6 +146,8 @@ def test_readme_example_loads_the_trained_robot_and_uses_it(quick, monkeypatch, 
     (["--set", "tl_hidden=a,b"], "tl_hidden"),
     (["--set", "al_phase1=0", "--set", "al_phase2=0"], "al_phase"),
     (["--set", "al_seeds=0"], "al_seeds"),
+    (["--set", "free_an_scenes=2"], "free_an_scenes"),
+    (["--set", "free_phase1=0", "--set", "free_phase2=0"], "free_phase"),
 ])
 def test_train_rejects_bad_arguments(argv, field, capsys):
     with pytest.raises(SystemExit):
