@@ -120,11 +120,10 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
     xy_cfg = tl_xy.XYConfig(hidden=8, replication=2)
     free_agent = cacla.init(k, cacla.CaclaConfig(task_set="free"))
     xy_params = tl_xy.init(k, xy_cfg)
-    # a namer trained for real on 3 rendered scenes (its accuracy is not the point here)
-    named, (net, esn_cfg) = beyond.train_namer(k, free_agent, xy_params, xy_cfg, scenes=3,
-                                               seeds=1, steps=4)
-    assert esn_cfg.n_in == 40 + 8 and named["sequences"] == 3 * 6 * 3
-    assert 0.0 <= named["test"]["acc_mean"] <= 1.0
+    # an untrained namer of the right shape (train.py's quick profile trains a real one:
+    # tests/test_train.py checks that it fits its sequences)
+    esn_cfg = esn.ESNConfig(n_in=40 + xy_cfg.hidden, task_set="free")
+    net = esn.init(k, esn_cfg)
     modules = {"xy_params": xy_params, "xy_config": xy_cfg, "agent": free_agent,
                "al_config": cacla.CaclaConfig(task_set="free"),
                "env_config": beyond.env_config(), "net": net, "esn_config": esn_cfg}
