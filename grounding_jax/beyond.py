@@ -2,12 +2,12 @@
 that moves.
 
 The paper's family (three fixed slots, the actor told the target's slot) stays as it is. This
-one uses the ``"free"`` task set: the same actions, rewards and success rules, but every
-training episode places the objects anywhere on the reachable table
-(:func:`placement.sample`) and the actor is told the target's coordinates (scaled to [-1, 1];
+one uses the ``"free"`` task set: the same actions and success rules, but every training
+episode places the objects anywhere on the reachable table (:func:`placement.sample`) and the
+actor is told the target's coordinates (as a population code, :func:`placement.population`;
 from the simulator while it learns, from the continuous TL :mod:`grounding_jax.tl_xy` when the
 robot performs). Point's reward and success use the pointing map (IK poses on a 1 cm grid,
-interpolated inside ``jit``; :func:`placement.pointing_pose`).
+smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`).
 
 The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
 actor's learning rate 0.1); the target's coordinates reach the actor as a population code,

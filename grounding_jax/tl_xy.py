@@ -217,9 +217,13 @@ def init(key: jax.Array, config: XYConfig) -> XYParams:
     return XYParams(w1, jnp.zeros(config.hidden), w2, jnp.zeros(2))
 
 
+def _hidden_of(params: XYParams, x: jax.Array) -> jax.Array:
+    return jax.nn.sigmoid(x @ params.w1 + params.b1)
+
+
 def apply(params: XYParams, x: jax.Array) -> jax.Array:
     """Normalised coordinates ``[..., 2]`` (see :func:`denormalise`) of inputs ``x``."""
-    return jax.nn.sigmoid(x @ params.w1 + params.b1) @ params.w2 + params.b2
+    return _hidden_of(params, x) @ params.w2 + params.b2
 
 
 def split(key: jax.Array, n: int, test_fraction: float) -> tuple[jax.Array, jax.Array]:
@@ -290,8 +294,7 @@ def hidden(params: XYParams, bitmaps: jax.Array, symbols: jax.Array, config: XYC
            hp: XYHyper = DEFAULT_HYPER) -> jax.Array:
     """The hidden layer ``[..., hidden]`` for bitmaps and symbols (the free family's namer
     reads it as the TL's "what" input, as the paper's AN reads the TL's)."""
-    x = inputs(bitmaps, symbols, config.replication, hp.symbol_scale)
-    return jax.nn.sigmoid(x @ params.w1 + params.b1)
+    return _hidden_of(params, inputs(bitmaps, symbols, config.replication, hp.symbol_scale))
 
 
 #: the issue's goals for the held-out error (cm)
