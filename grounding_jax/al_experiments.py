@@ -26,8 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, learners, rollout, scene, scripted, tasks
-from grounding_jax import placement as free
+from grounding_jax import al, cacla, learners, rollout, scene, scripted, tasks, tl_xy
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.env import (
     DEFAULT_PARAMS,
@@ -70,9 +69,7 @@ def free_tasks(key: jax.Array, placements: int, actions: tuple[int, ...] = (0, 1
     """Every action of ``actions`` at every slot of ``placements`` random placements
     (:func:`placement.sample`), each placement with a random layout, as a batched
     :class:`Task` (for the ``"free"`` task set's evaluation)."""
-    k_place, k_layout = jax.random.split(key)
-    placed = jax.vmap(free.sample)(jax.random.split(k_place, placements))
-    layout = jax.random.randint(k_layout, (placements,), 0, len(scene.LAYOUTS), jnp.int32)
+    placed, layout = (jnp.asarray(x) for x in tl_xy.draw_scenes(key, placements))
     a, p, i = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.arange(placements),
                           indexing="ij")
     i = i.ravel()
