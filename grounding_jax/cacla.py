@@ -11,11 +11,13 @@
   ``CaclaConfig.var``): the actor update is repeated ``ceil(delta / sqrt(var_delta))`` times
   (at most ``max_var_repeats``), with ``var_delta`` a running variance of delta.
 
-Network sizes are static (``CaclaConfig``); learning rates, sigma, gamma, the phase switch,
-the decays and the hidden units in use are traced (``CaclaHyper``). A smaller hidden layer can
-still be traced: :func:`init` leaves the units past ``*_units`` at zero weights, where they
-stay (see there). :data:`LEARNER` is CACLA behind the AL trainer's learner seam
-(:mod:`grounding_jax.learners`).
+Actions share one actor and one critic (the paper), or some or all of them learn in their
+own (static ``CaclaConfig.heads``: the leaves get an action axis, the observation's action
+one-hot picks the slot). Network sizes are static (``CaclaConfig``); learning rates, sigma,
+gamma, the phase switch, the decays and the hidden units in use are traced (``CaclaHyper``).
+A smaller hidden layer can still be traced: :func:`init` leaves the units past ``*_units`` at
+zero weights, where they stay (see there). :data:`LEARNER` is CACLA behind the AL trainer's
+learner seam (:mod:`grounding_jax.learners`).
 """
 
 from __future__ import annotations
@@ -58,6 +60,12 @@ class CaclaConfig:
         max_var_repeats: cap on the CACLA+Var repetitions of one actor update.
         task_set: name of the :class:`tasks.TaskSet` whose observation and action the
             networks take and give (their input and output sizes follow from it).
+        heads: which actions share an actor-critic: ``()`` -- one actor and one critic
+            for every action, told the action by its one-hot input (the paper); else one
+            network index per action, e.g. ``(0, 1, 1)``: point learns alone, touch and push
+            share a second pair. Every action keeps a slot (the leaves get an action axis;
+            actions that share a network hold equal copies, updated together) and the
+            observation's action one-hot picks it (see :func:`head`).
     """
 
     actor_hidden: int = 40
@@ -65,10 +73,24 @@ class CaclaConfig:
     var: bool = False
     max_var_repeats: int = 10
     task_set: str = tasks.PAPER.name
+    heads: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         check_config(self, CONFIG_RULES)
-        tasks.get(self.task_set)
+        n = tasks.get(self.task_set).n_actions
+        heads = self.heads
+        try:
+            heads = tuple(int(h) for h in heads)
+            ok = heads == () or (len(heads) == n and set(heads) == set(range(max(heads) + 1)))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"heads: got {self.heads!r}; accepted values: () (one network for every "
+                f"action) or one network index per action of {self.task_set!r} ({n} "
+                f"integers numbering the networks 0, 1, ... without gaps, e.g. "
+                f"{tuple(range(n))} for one network each)")
+        object.__setattr__(self, "heads", heads)  # a JSON list becomes a tuple
 
     @property
     def obs_size(self) -> int:
@@ -189,9 +211,18 @@ def init(key: jax.Array, config: CaclaConfig = CaclaConfig(), actor_units=None,
     """
     ka, kc = jax.random.split(key)
     n_obs = config.obs_size
-    return Agent(actor=_mlp_init(ka, n_obs, config.actor_hidden, config.action_size, actor_units),
-                 critic=_mlp_init(kc, n_obs, config.critic_hidden, 1, critic_units),
-                 var_delta=jnp.ones((), jnp.float32))
+    actor = _mlp_init(ka, n_obs, config.actor_hidden, config.action_size, actor_units)
+    critic = _mlp_init(kc, n_obs, config.critic_hidden, 1, critic_units)
+    if config.heads:  # a slot per action: network h from its own fold of the key
+        net = jnp.asarray(config.heads, jnp.int32)
+
+        def per_action(k, n_out, hidden, units):
+            return jax.vmap(lambda h: _mlp_init(jax.random.fold_in(k, h), n_obs, hidden,
+                                                n_out, units))(net)
+
+        actor = per_action(ka, config.action_size, config.actor_hidden, actor_units)
+        critic = per_action(kc, 1, config.critic_hidden, critic_units)
+    return Agent(actor=actor, critic=critic, var_delta=jnp.ones((), jnp.float32))
 
 
 def start(key: jax.Array, config: CaclaConfig, hp: CaclaHyper) -> Agent:
@@ -226,8 +257,35 @@ def _matvec(x: jax.Array, w: jax.Array) -> jax.Array:
     return acc
 
 
+def _head_index(net: MLP, obs: jax.Array) -> jax.Array | None:
+    """The action whose slot ``obs`` asks for (its action one-hot), or None for a network
+    shared by every action (no action axis)."""
+    if net.w1.ndim == 2:
+        return None
+    return jnp.argmax(obs[tasks.N_JOINTS + 1:tasks.N_JOINTS + 1 + net.w1.shape[0]])
+
+
+def head(net: MLP, obs: jax.Array) -> MLP:
+    """The plain network that serves ``obs``: ``net`` itself when every action shares it,
+    else the slot of the observation's action (:attr:`CaclaConfig.heads`)."""
+    a = _head_index(net, obs)
+    return net if a is None else jax.tree.map(lambda w: w[a], net)
+
+
+def _put_head(net: MLP, obs: jax.Array, new: MLP, heads: tuple[int, ...]) -> MLP:
+    """``net`` with ``new`` written to the slot that serves ``obs`` and to every slot of an
+    action sharing its network (``heads``; inverse of :func:`head`)."""
+    a = _head_index(net, obs)
+    if a is None:
+        return new
+    same = jnp.asarray(heads) == jnp.asarray(heads)[a]  # [actions]
+    return jax.tree.map(lambda w, v: jnp.where(same.reshape((-1,) + (1,) * v.ndim), v, w),
+                        net, new)
+
+
 def actor_apply(actor: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Actor forward pass: (hidden activations [H], action [4] in (-1, 1))."""
+    actor = head(actor, obs)
     h = jnp.tanh(_matvec(obs, actor.w1) + actor.b1)
     return h, jnp.tanh(_matvec(h, actor.w2) + actor.b2)
 
@@ -244,6 +302,7 @@ def critic_apply(critic: MLP, obs: jax.Array) -> jax.Array:
 
 
 def _critic(critic: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    critic = head(critic, obs)
     h = jnp.tanh(_matvec(obs, critic.w1) + critic.b1)
     return h, (_matvec(h, critic.w2) + critic.b2)[0]
 
@@ -288,12 +347,14 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
     Returns:
         (new agent, info with ``delta``, ``actor_updated`` (0/1) and ``value``).
     """
-    h, v = _critic(agent.critic, tr.obs)
-    dv = _critic_grad(agent.critic, tr.obs, h)
+    here = head(agent.critic, tr.obs)  # the action's own head (the network when shared)
+    h, v = _critic(here, tr.obs)
+    dv = _critic_grad(here, tr.obs, h)
     v_next = critic_apply(agent.critic, tr.next_obs)
     target = tr.reward + hp.gamma * (1.0 - tr.done.astype(jnp.float32)) * v_next
     delta = jax.lax.stop_gradient(target - v)
-    critic = _step(agent.critic, dv, hp.critic_lr * delta)
+    critic = _put_head(agent.critic, tr.obs, _step(here, dv, hp.critic_lr * delta),
+                       config.heads)
 
     improved = jnp.where(hp.phase1 > 0.5, tr.reward > tr.prev_reward, delta > 0)
 
@@ -307,9 +368,10 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
         var_delta = (1 - hp.var_beta) * var_delta + hp.var_beta * delta**2
         repeats = jnp.clip(jnp.ceil(delta / jnp.sqrt(var_delta)), 1, config.max_var_repeats)
         repeats = jnp.where(hp.phase1 > 0.5, 1, repeats).astype(jnp.int32)
-        moved = jax.lax.fori_loop(0, repeats, lambda _, a: pull(a), agent.actor)
+        moved = jax.lax.fori_loop(0, repeats, lambda _, a: pull(a), head(agent.actor, tr.obs))
     else:
-        moved = pull(agent.actor)
+        moved = pull(head(agent.actor, tr.obs))
+    moved = _put_head(agent.actor, tr.obs, moved, config.heads)
     actor = jax.tree.map(lambda new, old: jnp.where(improved, new, old), moved, agent.actor)
     info = {"delta": delta, "actor_updated": improved.astype(jnp.float32), "value": v}
     return Agent(actor=actor, critic=critic, var_delta=var_delta), info

@@ -11,6 +11,7 @@ from jax.flatten_util import ravel_pytree
 from grounding_jax import cacla
 
 CFG = cacla.CaclaConfig()
+CFG_SHAPES = {"w1": (11, 40)}
 
 
 @pytest.fixture(scope="module")
@@ -186,3 +187,43 @@ def test_unused_hidden_units_stay_zero_and_change_nothing():
                                cacla.actor_apply(small.actor, obs)[1], atol=1e-6)
     np.testing.assert_allclose(cacla.critic_apply(big.critic, obs),
                                cacla.critic_apply(small.critic, obs), atol=1e-6)
+
+
+@pytest.mark.parametrize("heads", [(0, 1, 2), (0, 1, 1)])
+def test_actions_with_their_own_network_learn_only_from_their_own_episodes(heads):
+    """An update on touch (action 1) changes touch's network -- and push's, where the two
+    share one -- and leaves point's as it was; each slot computes what a plain network with
+    its leaves computes."""
+    agent = cacla.init(jax.random.key(4), cacla.CaclaConfig(heads=heads))
+    assert agent.actor.w1.shape == (3, *CFG_SHAPES["w1"]) and agent.critic.b2.shape == (3, 1)
+    shares = np.asarray(heads) == heads[1]  # the slots that are touch's network
+    for net in (agent.actor, agent.critic):
+        for leaf in jax.tree.leaves(net):
+            np.testing.assert_array_equal(leaf[1], leaf[np.flatnonzero(shares)[-1]])
+        assert np.any(net.w1[0] != net.w1[1]) and np.any(net.w2[0] != net.w2[1])
+    obs = _obs(1).at[5:8].set(jnp.array([0.0, 1.0, 0.0]))  # the action one-hot: touch
+    tr = cacla.Transition(obs=obs, action=jnp.full(4, 0.5), reward=jnp.asarray(1.0),
+                          next_obs=obs, done=jnp.asarray(False), prev_reward=jnp.asarray(0.0))
+    hp = cacla.CaclaHyper(actor_lr=0.1, critic_lr=0.1, phase1=1.0)
+    new, info = cacla.update(agent, tr, hp, cacla.CaclaConfig(heads=heads))
+    assert info["actor_updated"] == 1.0
+    for old, now in zip(jax.tree.leaves(agent.actor) + jax.tree.leaves(agent.critic),
+                        jax.tree.leaves(new.actor) + jax.tree.leaves(new.critic), strict=True):
+        old, now = np.asarray(old), np.asarray(now)
+        np.testing.assert_array_equal(old[~shares], now[~shares])
+        assert np.all(np.any((old != now).reshape(3, -1), axis=1) == shares)
+        np.testing.assert_array_equal(now[1], now[np.flatnonzero(shares)[-1]])
+    plain = cacla.head(new.actor, obs)
+    assert plain.w1.shape == CFG_SHAPES["w1"]
+    np.testing.assert_array_equal(cacla.actor_apply(new.actor, obs)[1],
+                                  cacla.actor_apply(plain, obs)[1])
+    point = obs.at[5:8].set(jnp.array([1.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(cacla.actor_apply(new.actor, point)[1],
+                                  cacla.actor_apply(cacla.head(agent.actor, point), point)[1])
+
+
+@pytest.mark.parametrize("heads", [(0, 1), (0, 2, 2), (1, 1, 1), "abc"])
+def test_bad_heads_name_the_field_and_what_is_accepted(heads):
+    with pytest.raises(ValueError, match=r"heads: got .*one network index per action"):
+        cacla.CaclaConfig(heads=heads)
+    assert cacla.CaclaConfig(heads=[0, 1, 1]).heads == (0, 1, 1)  # from JSON: a list
