@@ -107,8 +107,8 @@ def test_point_left_is_learned():
     trained, m = jax.jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)))(keys, hp)
     untrained = jax.vmap(lambda k: al.schedule(k, cfg)[0])(keys)
     success = al_experiments.make_success(cfg.env, actions=(0,))
-    left = np.asarray(success(trained, jax.random.key(1))["position"]) == 0
     after = jax.device_get(success(trained, jax.random.key(1)))
+    left = np.asarray(after["position"]) == 0
     before = jax.device_get(success(untrained, jax.random.key(1)))
     l1_after = np.median(after["final_point_l1"][..., left])
     l1_before = np.median(before["final_point_l1"][..., left])

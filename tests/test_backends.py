@@ -18,11 +18,12 @@ See README ("Backends") for the full table.
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import scene, scripted
+from grounding_jax import rollout, scene, scripted
 
 pytestmark = pytest.mark.mjx
 IDX = scene.index()
@@ -40,11 +41,21 @@ def _objects(qpos):
     return np.asarray(qpos)[..., IDX.object_qpos[:, :3]]
 
 
-def test_free_motion_agrees_tightly(run_c, run_mjx):
-    # track the pointing pose of each position: no contact at all
+def test_free_motion_agrees_tightly_and_mjx_runs_under_jit_vmap_scan(run_c, env_mjx):
+    # track the pointing pose of each position (no contact at all); the MJX side runs the
+    # three episodes as one jit(vmap(scan)) batch -- the GPU path's shape of a run
+    waypoints = jnp.asarray(np.repeat(scene.pointing_configs()[:, None], 75, axis=1))
+    zeros = jnp.zeros(3, jnp.int32)
+    batch = gj.Task(zeros, jnp.arange(3, dtype=jnp.int32), zeros)  # point, layout 0
+
+    def one(w, task):
+        policy = lambda s: scripted.tracking_action(w, s.step, s.obs)  # noqa: E731
+        return rollout.run_episode(env_mjx, jax.random.key(0), task, policy)[1]
+
+    mjx = jax.device_get(jax.jit(jax.vmap(one))(waypoints, batch))
     for p in range(3):
-        w = np.repeat(scene.pointing_configs()[p][None], 75, axis=0)
-        (_, c), (_, x) = _both(run_c, run_mjx, w, gj.make_task("point", p, 0))
+        _, c = jax.device_get(run_c(waypoints[p], gj.make_task("point", p, 0), gj.EnvParams()))
+        x = jax.tree.map(lambda v: v[p], mjx)  # noqa: B023
         dj = np.abs(c.qpos[:, IDX.arm_qpos] - x.qpos[:, IDX.arm_qpos]).max()
         assert dj < 5e-4, f"position {p}: joints differ by {dj} rad"  # measured 1.3e-4
         np.testing.assert_allclose(c.reward, x.reward, atol=1e-3)
@@ -87,17 +98,3 @@ def test_wrong_object_bump_ends_the_episode_on_both(run_c, run_mjx, push_waypoin
     first_contact = int(np.argmax(c.metrics["touched_other"]))
     pre = slice(0, first_contact)
     assert np.abs(c.qpos[pre][:, IDX.arm_qpos] - x.qpos[pre][:, IDX.arm_qpos]).max() < 1e-4
-
-
-def test_vmap_jit_scan_work_on_mjx(env_mjx):
-    keys = jax.random.split(jax.random.key(0), 3)
-    tasks = jax.vmap(lambda a: gj.Task(a, a, a))(np.arange(3, dtype=np.int32))
-    w = np.asarray(scripted.push_waypoints(1))
-
-    def run(key, task):
-        from grounding_jax import rollout
-        pol = lambda s: scripted.tracking_action(w, s.step, s.obs)  # noqa: E731
-        return rollout.run_episode(env_mjx, key, task, pol, steps=5)[1].reward
-
-    r = jax.jit(jax.vmap(run))(keys, tasks)
-    assert r.shape == (3, 5) and np.isfinite(np.asarray(r)).all()
