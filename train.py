@@ -265,7 +265,6 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
 
     from grounding_jax import al_experiments, tl_xy, trained
     from grounding_jax import beyond as B
-    from grounding_jax.cacla import CaclaConfig
     from grounding_jax.env import Env
 
     cfg = tl_xy.XYConfig(hidden=st["xy_hidden"], steps=st["xy_steps"],
@@ -281,7 +280,7 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
                            checkpoints=((st["free_phase1"] + st["free_phase2"]) // 2,))
     agent = jax.tree.map(lambda x: x[free["median_agent"]], agents)
     modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent,
-               "al_config": CaclaConfig(task_set="free"), "env_config": B.env_config(backend)}
+               "al_config": B.FREE_LEARNER, "env_config": B.env_config(backend)}
     # the whole robot: coordinates from the eye camera and the TL instead of the simulator
     looks = trained.TrainedFree(xy_params, cfg, trained.TrainedAL(agent, modules["al_config"]),
                                 modules["env_config"])

@@ -225,6 +225,18 @@ def _rate_cell(table: dict, action: str) -> str:
     return f"{_pct(table['by_action'][action])} ({_pct(lo)}-{_pct(hi)})"
 
 
+def _networks(heads: list[int] | None) -> str:
+    """The sentence on which actions share an actor-critic (``CaclaConfig.heads``)."""
+    if not heads:
+        return "One actor-critic serves all three actions (told the action by its one-hot)."
+    names = ("point", "touch", "push")
+    groups = [[n for n, h in zip(names, heads, strict=True) if h == g]
+              for g in range(max(heads) + 1)]
+    said = [g[0] + " alone" if len(g) == 1 else " and ".join(g) + " together" for g in groups]
+    return ("Networks (`CaclaConfig.heads`): " + "; ".join(said)
+            + " -- an actor-critic of the paper's sizes each.")
+
+
 def _free_report(free: dict | None, strip: dict | None) -> list[str]:
     if not free:
         return ["", "Not in this metrics.json: the free family's action learner (made before "
@@ -238,8 +250,9 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
         f"episode, random layout), phase 1 for {free['phase1']} episodes then plain CACLA. "
         "The actor is told where the target is by the simulator, as a population code of its "
         "coordinates (Gaussian bumps on a 3 x 7 grid over the reachable region) instead of "
-        f"its slot. Settings: {hyper} (the paper family's but for gamma and the actor's "
-        "rate; README \"Beyond the paper\" has the measurements behind each change). The "
+        f"its slot. {_networks(free.get('heads'))} Settings: {hyper} (the paper family's "
+        "but for gamma and the actor's rate; README \"Beyond the paper\" has the "
+        "measurements behind each change). The "
         "free family's rewards: every action pays -0.5 while touching a non-target object; "
         "touch pays minus the palm's distance to where the target is now until it touches "
         "it, then nothing, less 10 per metre the target moved. Point's reward and criterion "

@@ -54,7 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, al_experiments, cacla, env, physics, tasks, tl, tl_data
+from grounding_jax import al, al_experiments, beyond, cacla, env, physics, tl, tl_data
 from grounding_jax._checks import Rule
 from grounding_jax._io import atomic_write_text, pyplot, write_figure
 from grounding_jax.checkpoint import Checkpointer, CheckpointError
@@ -382,13 +382,14 @@ def _module_config(spec: SweepSpec, static: dict[str, Any]):
 
 
 def _al_config(pts: list[dict], static: dict[str, Any]) -> al.ALConfig:
-    task_set = tasks.FREE.name if static["placement"] == "random" else tasks.PAPER.name
+    # random placements: the free family, with its networks (beyond.FREE_LEARNER's heads)
+    learner = beyond.FREE_LEARNER if static["placement"] == "random" else cacla.CaclaConfig()
     return al.ALConfig(
         env=EnvConfig(backend=static["backend"], substeps=static["substeps"],
-                      episode_length=static["episode_length"], task_set=task_set),
-        learner=cacla.CaclaConfig(actor_hidden=max(p["actor_hidden"] for p in pts),
-                                  critic_hidden=max(p["critic_hidden"] for p in pts),
-                                  var=static["var"], task_set=task_set),
+                      episode_length=static["episode_length"], task_set=learner.task_set),
+        learner=dataclasses.replace(learner, actor_hidden=max(p["actor_hidden"] for p in pts),
+                                    critic_hidden=max(p["critic_hidden"] for p in pts),
+                                    var=static["var"]),
         phase1_episodes=static["phase1_episodes"],
         phase2_episodes=static["phase2_episodes"], random_layout=static["random_layout"],
         placement=static["placement"])

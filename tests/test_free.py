@@ -118,14 +118,14 @@ def test_training_draws_a_placement_per_episode():
 def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer):
     k = jax.random.key(0)
     xy_cfg = tl_xy.XYConfig(hidden=8, replication=2)
-    free_agent = cacla.init(k, cacla.CaclaConfig(task_set="free"))
+    free_agent = cacla.init(k, beyond.FREE_LEARNER)
     xy_params = tl_xy.init(k, xy_cfg)
     # an untrained namer of the right shape (train.py's quick profile trains a real one:
     # tests/test_train.py checks that it fits its sequences)
     esn_cfg = esn.ESNConfig(n_in=40 + xy_cfg.hidden, task_set="free")
     net = esn.init(k, esn_cfg)
     modules = {"xy_params": xy_params, "xy_config": xy_cfg, "agent": free_agent,
-               "al_config": cacla.CaclaConfig(task_set="free"),
+               "al_config": beyond.FREE_LEARNER,
                "env_config": beyond.env_config(), "net": net, "esn_config": esn_cfg}
     tl_cfg = tl.TLConfig(max_hidden=5, max_replication=1)
     tl_hp = tl.TLHyper(hidden=5, replication=1)
@@ -163,12 +163,14 @@ def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp
         "grid": {"gamma": [0.0, 0.3]}})
     cfg = sweep._module_config(spec, spec.groups()[0][0])
     assert cfg.placement == "random" and cfg.env.task_set == cfg.learner.task_set == "free"
+    assert cfg.learner.heads == beyond.FREE_LEARNER.heads  # the free family's networks
     sweep.run(spec, tmp_path, show_progress=False)
     with np.load(tmp_path / "free_tiny" / "metrics.npz") as f:
         rates = f["success_point"]
     assert rates.shape == (4, 1) and np.all((rates >= 0) & (rates <= 1))
     (_, agents, _), _ = sweep.trained_agents(spec, tmp_path)
-    assert agents.actor.w1.shape[1:] == (tasks.FREE.obs_size, 4)
+    # the first point's 2 agents, each with a network slot per action
+    assert agents.actor.w1.shape == (2, tasks.FREE.n_actions, tasks.FREE.obs_size, 4)
     with pytest.raises(sweep.SweepError, match="placement"):
         sweep.parse_spec({"module": "al", "params": {"placement": "anywhere"},
                           "grid": {"gamma": [0.0]}})
