@@ -10,10 +10,11 @@ robot performs). Point's reward and success use the pointing map (IK poses on a 
 smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`).
 
 The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
-actor's learning rate 0.1); the target's coordinates reach the actor as a population code,
-and the rewards are the free family's (see ``tasks.FREE``: every action is penalised for
-touching a non-target object, touch measures the palm to where the target is now, without the
-paper's penalty for touching it).
+actor's learning rate 0.1), its networks :data:`FREE_LEARNER` (point in an actor-critic of its
+own, touch and push sharing a second); the target's coordinates reach the actor as a
+population code, and the rewards are the free family's (see ``tasks.FREE``: every action is
+penalised for touching a non-target object, touch measures the palm to where the target is
+now, without the paper's penalty for touching it).
 
 - :func:`train` / :func:`success`: agents trained on random placements, judged on held-out
   random placements (fresh draws, random layouts) with the action-learning criteria.
