@@ -401,6 +401,14 @@ def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef, loop: str = 
     return jax.jit(jax.vmap(_loop_maker(loop)(config), in_axes=(0, 0, None, axes)))
 
 
+@functools.lru_cache(maxsize=16)
+def _batched_schedule(config: ALConfig, hp_axes: tuple, hp_treedef):
+    """``jit(vmap(schedule))``, kept as :func:`_batched_episodes` is: run eagerly, its random
+    draws compiled one small XLA program per op and shape (~20 s of a quick profile)."""
+    axes = jax.tree.unflatten(hp_treedef, hp_axes)
+    return jax.jit(jax.vmap(lambda k, h: schedule(k, config, h), in_axes=(0, axes)))
+
+
 def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
                     on_stop=None, start: tuple | None = None, sharding=None,
                     loop: str = "auto_reset"):
@@ -432,9 +440,7 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
     axes, treedef = jax.tree.flatten(jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp),
                                      is_leaf=lambda x: x is None)
     run = _batched_episodes(config, tuple(axes), treedef, loop)
-    hp_tree = jax.tree.unflatten(treedef, axes)
-    agents, ep_keys, plan = jax.vmap(lambda k, h: schedule(k, config, h),
-                                     in_axes=(0, hp_tree))(keys, hp)
+    agents, ep_keys, plan = _batched_schedule(config, tuple(axes), treedef)(keys, hp)
     plan = jax.tree.map(lambda x: x[0], plan)  # the same for every agent
     done = 0
     metrics = None
