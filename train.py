@@ -35,7 +35,7 @@ PROFILES = {
     "quick": {"tl_epochs": 200, "tl_seeds": 3, "tl_hidden": [5, 20, 50],
               "tl_replication": [1, 5, 20], "sweep_seeds": 2,
               # shorter than the paper's 150 + 300: the quick profile must stay under 3 min
-              "al_seeds": 3, "al_phase1": 150, "al_phase2": 150, "al_no_tricks": 200,
+              "al_seeds": 3, "al_phase1": 150, "al_phase2": 150, "al_no_tricks": 100,
               "an_seeds": 3, "an_tl_epochs": 200,
               # beyond the paper, small: the continuous TL; the free family's robot
               "xy_seeds": 1, "xy_scenes": 6000, "xy_hidden": 50, "xy_steps": 4000,
@@ -57,13 +57,13 @@ PROFILES = {
 }
 #: the AL sweeps train.py runs (Figs 8, 9), with each profile's changes to the files
 AL_SWEEPS = {
-    "fig8a_critic_lr": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
+    "fig8a_critic_lr": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
                                   "critic_lr=0.001,0.01,0.1"]},
-    "fig8b_critic_hidden": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
+    "fig8b_critic_hidden": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
                                       "critic_hidden=5,20"]},
-    "fig9a_actor_lr": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
+    "fig9a_actor_lr": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
                                  "actor_lr=0.0001,0.001,0.01"]},
-    "fig9b_actor_hidden": {"quick": ["phase1_episodes=40", "phase2_episodes=40",
+    "fig9b_actor_hidden": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
                                      "actor_hidden=10,40"]},
 }
 #: settings that may be 0 (an empty phase, no no-tricks run)
