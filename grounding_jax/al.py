@@ -403,8 +403,9 @@ def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef, loop: str = 
 
 @functools.lru_cache(maxsize=16)
 def _batched_schedule(config: ALConfig, hp_axes: tuple, hp_treedef):
-    """``jit(vmap(schedule))``, kept as :func:`_batched_episodes` is: run eagerly, its random
-    draws compiled one small XLA program per op and shape (~20 s of a quick profile)."""
+    """``jit(vmap(schedule))``, cached like :func:`_batched_episodes`. Run eagerly instead,
+    its random draws would compile one small XLA program per op and shape (~20 s of a quick
+    profile)."""
     axes = jax.tree.unflatten(hp_treedef, hp_axes)
     return jax.jit(jax.vmap(lambda k, h: schedule(k, config, h), in_axes=(0, axes)))
 
