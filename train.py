@@ -55,16 +55,14 @@ PROFILES = {
               "free_eyes_placements": 20, "moving_scenes": 16, "free_an_scenes": 45,
               "free_an_seeds": 5},
 }
+#: the quick profile's AL sweep schedule (every sweep's; short: the 3-min budget)
+_QUICK_SWEEP_EPISODES = ["phase1_episodes=25", "phase2_episodes=25"]
 #: the AL sweeps train.py runs (Figs 8, 9), with each profile's changes to the files
 AL_SWEEPS = {
-    "fig8a_critic_lr": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
-                                  "critic_lr=0.001,0.01,0.1"]},
-    "fig8b_critic_hidden": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
-                                      "critic_hidden=5,20"]},
-    "fig9a_actor_lr": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
-                                 "actor_lr=0.0001,0.001,0.01"]},
-    "fig9b_actor_hidden": {"quick": ["phase1_episodes=25", "phase2_episodes=25",
-                                     "actor_hidden=10,40"]},
+    "fig8a_critic_lr": {"quick": [*_QUICK_SWEEP_EPISODES, "critic_lr=0.001,0.01,0.1"]},
+    "fig8b_critic_hidden": {"quick": [*_QUICK_SWEEP_EPISODES, "critic_hidden=5,20"]},
+    "fig9a_actor_lr": {"quick": [*_QUICK_SWEEP_EPISODES, "actor_lr=0.0001,0.001,0.01"]},
+    "fig9b_actor_hidden": {"quick": [*_QUICK_SWEEP_EPISODES, "actor_hidden=10,40"]},
 }
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2"}
