@@ -168,7 +168,9 @@ class MLP:
 
 @struct.dataclass
 class Agent:
-    """The learner's state: actor and critic parameters, CACLA+Var's running variance."""
+    """The learner's state: actor and critic parameters, CACLA+Var's running variance of
+    delta (a scalar; one slot per action when ``CaclaConfig.var`` and ``heads`` are both set,
+    so each network keeps its own)."""
 
     actor: MLP
     critic: MLP
@@ -222,7 +224,10 @@ def init(key: jax.Array, config: CaclaConfig = CaclaConfig(), actor_units=None,
 
         actor = per_action(ka, config.action_size, config.actor_hidden, actor_units)
         critic = per_action(kc, 1, config.critic_hidden, critic_units)
-    return Agent(actor=actor, critic=critic, var_delta=jnp.ones((), jnp.float32))
+    # CACLA+Var with networks per action: each network keeps its own running variance (a
+    # slot per action, like the networks' leaves); otherwise one scalar
+    var_shape = (len(config.heads),) if config.var and config.heads else ()
+    return Agent(actor=actor, critic=critic, var_delta=jnp.ones(var_shape, jnp.float32))
 
 
 def start(key: jax.Array, config: CaclaConfig, hp: CaclaHyper) -> Agent:
@@ -366,7 +371,12 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
     var_delta = agent.var_delta
     if config.var:
         var_delta = (1 - hp.var_beta) * var_delta + hp.var_beta * delta**2
-        repeats = jnp.clip(jnp.ceil(delta / jnp.sqrt(var_delta)), 1, config.max_var_repeats)
+        a = _head_index(agent.actor, tr.obs)
+        if a is not None:  # only the slots of the network that learned from this transition
+            same = jnp.asarray(config.heads) == jnp.asarray(config.heads)[a]
+            var_delta = jnp.where(same, var_delta, agent.var_delta)
+        own = var_delta if a is None else var_delta[a]
+        repeats = jnp.clip(jnp.ceil(delta / jnp.sqrt(own)), 1, config.max_var_repeats)
         repeats = jnp.where(hp.phase1 > 0.5, 1, repeats).astype(jnp.int32)
         moved = jax.lax.fori_loop(0, repeats, lambda _, a: pull(a), head(agent.actor, tr.obs))
     else:

@@ -222,6 +222,23 @@ def test_actions_with_their_own_network_learn_only_from_their_own_episodes(heads
                                   cacla.actor_apply(cacla.head(agent.actor, point), point)[1])
 
 
+def test_cacla_var_keeps_a_running_variance_per_network():
+    """With networks per action, a touch transition updates the running variance of touch and
+    push's network only; point's stays as it was."""
+    cfg = cacla.CaclaConfig(var=True, heads=(0, 1, 1))
+    agent = cacla.init(jax.random.key(4), cfg)
+    assert agent.var_delta.shape == (3,)
+    assert cacla.init(jax.random.key(4), cacla.CaclaConfig(heads=(0, 1, 1))).var_delta.shape == ()
+    obs = _obs(1).at[5:8].set(jnp.array([0.0, 1.0, 0.0]))  # touch
+    tr = cacla.Transition(obs=obs, action=jnp.full(4, 0.5), reward=jnp.asarray(3.0),
+                          next_obs=obs, done=jnp.asarray(False), prev_reward=jnp.asarray(0.0))
+    hp = cacla.CaclaHyper(actor_lr=0.01, var_beta=0.5)
+    new, info = cacla.update(agent, tr, hp, cfg)
+    delta = float(info["delta"])
+    np.testing.assert_allclose(np.asarray(new.var_delta),
+                               [1.0, 0.5 + 0.5 * delta ** 2, 0.5 + 0.5 * delta ** 2], rtol=1e-6)
+
+
 @pytest.mark.parametrize("heads", [(0, 1), (0, 2, 2), (1, 1, 1), "abc"])
 def test_bad_heads_name_the_field_and_what_is_accepted(heads):
     with pytest.raises(ValueError, match=r"heads: got .*one network index per action"):
