@@ -14,6 +14,7 @@ A sequence is named correctly when both decoded words are right at its last step
 
 from __future__ import annotations
 
+import functools
 import json
 import pathlib
 
@@ -62,10 +63,18 @@ def actor_sequences(agent: cacla.Agent, key: jax.Array, tasks: Task, steps: int,
                     params: EnvParams = DEFAULT_PARAMS, env: Env | EnvConfig = DEFAULT_ENV
                     ) -> np.ndarray:
     """The greedy actor's hidden activations ``[N, steps, hidden]`` for a batch of tasks."""
-    evaluate = al.make_eval(env, steps)
     keys = jax.random.split(key, tasks.action.shape[0])
-    run = jax.jit(jax.vmap(lambda k, t: evaluate(agent, k, t, params)[2]))
-    return np.asarray(run(keys, tasks))
+    run = _sequences(as_env(env).config, steps)
+    return np.asarray(run(agent, keys, tasks, params))
+
+
+@functools.lru_cache(maxsize=8)
+def _sequences(config: EnvConfig, steps: int):
+    """The jitted batch of :func:`actor_sequences` for one env config and episode length
+    (the agent and params are arguments, not constants: one compile serves every call)."""
+    evaluate = al.make_eval(config, steps)
+    return jax.jit(jax.vmap(lambda a, k, t, p: evaluate(a, k, t, p)[2],
+                            in_axes=(None, 0, 0, None)))
 
 
 def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 100,
