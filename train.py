@@ -139,6 +139,22 @@ def sweep_specs(profile: str, settings: dict, backend: str) -> dict:
             for name, changes in AL_SWEEPS.items()}
 
 
+def library_versions() -> dict[str, str]:
+    """Python's and the numerical libraries' versions: a run reproduces bit for bit only
+    under the same ones (a pushed sphere, for one, rolls to a different place under another
+    MuJoCo release)."""
+    import importlib.metadata
+    import platform
+
+    out = {"python": platform.python_version()}
+    for name in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "optax", "flax"):
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
 def env_check(key, env_config) -> list[dict]:
     """Scripted point and push episodes for each position; what happened in each."""
     import jax
@@ -372,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
               "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "wall_s": wall,
-              "version": gj.__version__}
+              "version": gj.__version__, "libraries": library_versions()}
     atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
     atomic_write_text(out / "metrics.csv", metrics_csv(result))
     atomic_write_text(out / "REPORT.md", report(result))

@@ -483,4 +483,8 @@ def report(result: dict) -> str:
                      f"{r['final_point_l1']:.3f} | {r['target_moved_m'] * 100:.1f} | "
                      f"{r['others_moved_m'] * 100:.2f} |")
     lines += ["", "Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()) + "."]
+    if "libraries" in result:  # runs before this was recorded do not say
+        lines += ["", "Run with " + ", ".join(f"{k} {v}" for k, v in result["libraries"].items())
+                  + " (the same seed reproduces these numbers bit for bit only under the same "
+                  "versions)."]
     return "\n".join(lines) + "\n"

@@ -3,6 +3,7 @@ argument checks."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import pathlib
 import re
@@ -28,6 +29,7 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     tmp_path = quick
     data = json.loads((tmp_path / "metrics.json").read_text())
     assert data["profile"] == "quick" and data["settings"] == train.PROFILES["quick"]
+    assert data["libraries"]["mujoco"] == importlib.metadata.version("mujoco")
     rows = {(r["action"], r["position"]): r for r in data["scripted_episodes"]}
     assert len(rows) == 6
     for pos in ("left", "middle", "right"):
@@ -41,6 +43,7 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert tl["accuracy"]["train_acc_mean"] > 0.95 and tl["accuracy"]["test_acc_mean"] > 0.5
     report = (tmp_path / "REPORT.md").read_text()
     assert "| test accuracy, H=50, n=20 | ~95% |" in report and "| push | left |" in report
+    assert f"mujoco {data['libraries']['mujoco']}" in report
     ref = tl["reference"]["learners"]
     assert ref["lookup"]["test_acc_mean"] > 0.9  # the same splits: the evidence is there
     assert "| lookup |" in report and "MLP 50 ReLU (Adam)" in report
