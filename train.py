@@ -142,9 +142,10 @@ def sweep_specs(profile: str, settings: dict, backend: str) -> dict:
 
 
 def library_versions() -> dict[str, str]:
-    """Python's and the numerical libraries' versions: a run reproduces bit for bit only
-    under the same ones (a pushed sphere, for one, rolls to a different place under another
-    MuJoCo release)."""
+    """Python's and the numerical libraries' versions, recorded with a run's numbers: bit-for-
+    bit reproduction is only expected under the same ones (results/paper's env check once
+    pushed the sphere 19.6 cm; with the libraries installed since, the same code pushes it
+    47.9 cm)."""
     import importlib.metadata
     import platform
 

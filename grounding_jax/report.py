@@ -485,6 +485,6 @@ def report(result: dict) -> str:
     lines += ["", "Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()) + "."]
     if "libraries" in result:  # runs before this was recorded do not say
         lines += ["", "Run with " + ", ".join(f"{k} {v}" for k, v in result["libraries"].items())
-                  + " (the same seed reproduces these numbers bit for bit only under the same "
-                  "versions)."]
+                  + " (bit-for-bit reproduction from the same seed is only expected under the "
+                  "same versions)."]
     return "\n".join(lines) + "\n"
