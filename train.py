@@ -141,23 +141,6 @@ def sweep_specs(profile: str, settings: dict, backend: str) -> dict:
             for name, changes in AL_SWEEPS.items()}
 
 
-def library_versions() -> dict[str, str]:
-    """Python's and the numerical libraries' versions, recorded with a run's numbers: bit-for-
-    bit reproduction is only expected under the same ones (results/paper's env check once
-    pushed the sphere 19.6 cm; with the libraries installed since, the same code pushes it
-    47.9 cm)."""
-    import importlib.metadata
-    import platform
-
-    out = {"python": platform.python_version()}
-    for name in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "optax", "flax"):
-        try:
-            out[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
-
-
 def env_check(key, env_config) -> list[dict]:
     """Scripted point and push episodes for each position; what happened in each."""
     import jax
@@ -345,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     import jax
 
     import grounding_jax as gj
-    from grounding_jax._io import atomic_write_text
+    from grounding_jax._io import atomic_write_text, library_versions
     from grounding_jax.cacla import CaclaConfig
     from grounding_jax.env import EnvConfig
     from grounding_jax.report import metrics_csv, report

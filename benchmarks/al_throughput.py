@@ -33,7 +33,6 @@ import time
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -44,6 +43,7 @@ from env_throughput import raw_rollout  # noqa: E402
 
 import grounding_jax as gj  # noqa: E402
 from grounding_jax import al, al_experiments, physics, scene  # noqa: E402
+from grounding_jax._io import library_versions  # noqa: E402
 from grounding_jax.env import EnvConfig  # noqa: E402
 
 SUBSTEPS = 10
@@ -244,7 +244,7 @@ def main() -> None:
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"substeps": SUBSTEPS, "cpu_count": os.cpu_count(), "platform": platform.platform(),
-            "jax": jax.__version__, "mujoco": mujoco.__version__,
+            **library_versions(),
             "devices": [str(d) for d in jax.devices()], "hyperparameters": HP}
     tmp = out.with_suffix(".json.tmp")
     tmp.write_text(json.dumps({"meta": meta, "reference": ref, "rows": rows}, indent=2) + "\n")

@@ -35,6 +35,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 import grounding_jax as gj  # noqa: E402
 from grounding_jax import physics, scene  # noqa: E402
+from grounding_jax._io import library_versions  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 SUBSTEPS = 10
@@ -170,7 +171,7 @@ def main() -> None:
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"substeps": SUBSTEPS, "cpu_count": os.cpu_count(), "platform": platform.platform(),
-            "jax": jax.__version__, "mujoco": mujoco.__version__,
+            **library_versions(),
             "devices": [str(d) for d in jax.devices()]}
     out.write_text(json.dumps({"meta": meta, "raw_mj_step_per_s": mj, "rows": rows},
                               indent=2) + "\n")
