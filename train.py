@@ -280,10 +280,11 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
                            checkpoints=((st["free_phase1"] + st["free_phase2"]) // 2,))
     agent = jax.tree.map(lambda x: x[free["median_agent"]], agents)
     modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent,
-               "al_config": B.FREE_LEARNER, "env_config": B.env_config(backend)}
+               "al_config": B.FREE_LEARNER, "env_config": B.env_config(backend),
+               "params": B.params()}
     # the whole robot: coordinates from the eye camera and the TL instead of the simulator
     looks = trained.TrainedFree(xy_params, cfg, trained.TrainedAL(agent, modules["al_config"]),
-                                modules["env_config"])
+                                modules["env_config"], params=modules["params"])
     batch, err = B.eyes_tasks(looks.localize, k_eyes, st["free_eyes_placements"])
     env = Env(modules["env_config"])
     eyes_out = al_experiments.make_success(env, batch=batch)(

@@ -7,14 +7,16 @@ episode places the objects anywhere on the reachable table (:func:`placement.sam
 actor is told the target's coordinates (as a population code, :func:`placement.population`;
 from the simulator while it learns, from the continuous TL :mod:`grounding_jax.tl_xy` when the
 robot performs). Point's reward and success use the pointing map (IK poses on a 1 cm grid,
-smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`).
+smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`), and touch's reward
+the touching map in the same way (the palm pressed on the target's top;
+:func:`placement.touch_pose`).
 
 The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
 actor's learning rate 0.1), its networks :data:`FREE_LEARNER` (point in an actor-critic of its
 own, touch and push sharing a second); the target's coordinates reach the actor as a
 population code, and the rewards are the free family's (see ``tasks.FREE``: every action is
-penalised for touching a non-target object, touch measures the palm to where the target is
-now, without the paper's penalty for touching it).
+penalised for touching a non-target object, touch reaches for its touching pose, without
+the paper's penalty for touching the target).
 
 - :func:`train` / :func:`success`: agents trained on random placements, judged on held-out
   random placements (fresh draws, random layouts) with the action-learning criteria.
@@ -41,7 +43,7 @@ from grounding_jax import al, cacla, scene, tasks, tl_data
 from grounding_jax import al_experiments as alx
 from grounding_jax import placement as free
 from grounding_jax._io import pyplot, write_figure
-from grounding_jax.env import Env, EnvConfig, Task
+from grounding_jax.env import Env, EnvConfig, EnvParams, Task
 
 #: The issue's success goals on held-out placements.
 GOALS = {"point": 0.90, "touch": 0.80, "push": 0.85}
@@ -68,15 +70,23 @@ def config(phase1: int, phase2: int, backend: str = "mujoco") -> al.ALConfig:
                        phase1_episodes=phase1, phase2_episodes=phase2, placement="random")
 
 
-#: The free family's learner settings: the paper family's shipped ones (``al_experiments.TUNED``
-#: + ``TUNED_AL``) but for gamma and the actor's learning rate, chosen on tuning keys and seeds
-#: train.py never reports with (README "Beyond the paper"; ``sweeps/free_al_tuning.toml``).
-FREE_TUNED = {**alx.TUNED, **alx.TUNED_AL, "gamma": 0.3, "actor_lr": 0.1}
+#: The free family's learner and env settings: the paper family's shipped ones
+#: (``al_experiments.TUNED`` + ``TUNED_AL``) but for gamma, the actor's learning rate and the
+#: action's scale (finer steps: an arm that arrives gently touches without shoving), with
+#: touch's reward weights, chosen on tuning keys and seeds train.py never reports with
+#: (README "Beyond the paper"; ``sweeps/free_al_tuning.toml``).
+FREE_TUNED = {**alx.TUNED, **alx.TUNED_AL, "gamma": 0.3, "actor_lr": 0.1, "action_scale": 0.2,
+              "touch_moved_penalty": 10.0, "touch_bonus": 0.0}
 
 
 def hyper() -> al.ALHyper:
     """The free family's shipped settings (:data:`FREE_TUNED`)."""
     return al.validate(al.hyper(**FREE_TUNED))
+
+
+def params() -> EnvParams:
+    """The env parameters the free family's robot acts with (:data:`FREE_TUNED`'s)."""
+    return hyper().env
 
 
 def make_success(env: Env, key: jax.Array, placements: int):
@@ -128,7 +138,7 @@ def train(key: jax.Array, seeds: int, phase1: int, phase2: int, eval_placements:
            "eval_placements": eval_placements, "success": tables, "final": final,
            "train_s": time.perf_counter() - t,
            "rl_steps": int(np.asarray(metrics["steps"]).sum()), "median_agent": median_agent,
-           "hyper": FREE_TUNED, "heads": list(FREE_LEARNER.heads)}
+           "hyper": FREE_TUNED, "heads": list(FREE_LEARNER.heads), "touch_reward": "pose"}
     return res, agents
 
 
@@ -148,14 +158,14 @@ def moving_tasks(key: jax.Array, scenes: int, speed: Any, action: int,
 
 
 def make_moving(env: Env, steps: int = MOVING_STEPS):
-    """``run(agent, keys, tasks) -> (palm-target distance [scenes, steps], point L1 [scenes,
-    steps], wrong moved [scenes])``: greedy episodes of batched moving tasks."""
+    """``run(agent, keys, tasks, env_params) -> (palm-target distance [scenes, steps], point
+    L1 [scenes, steps], wrong moved [scenes])``: greedy episodes of batched moving tasks."""
     evaluate = al.make_eval(env, steps)
 
     @jax.jit
-    def run(agent, keys, batch: Task):
+    def run(agent, keys, batch: Task, env_params: EnvParams):
         def one(k, task):
-            _, traj, _ = evaluate(agent, k, task)
+            _, traj, _ = evaluate(agent, k, task, env_params)
             return (traj.metrics["palm_target_dist"], traj.metrics["point_l1"],
                     traj.wrong_since[-1] >= 0)
         return jax.vmap(one)(keys, batch)
@@ -176,6 +186,7 @@ def moving(agent, key: jax.Array, out: pathlib.Path, scenes: int = 16,
     """
     env = Env(env_config(backend))
     run = make_moving(env, steps)
+    acting = params()
     keys = jax.random.split(key, scenes)  # the same scenes for every speed, action and robot
     half = slice(steps // 2, None)
     res: dict[str, Any] = {"scenes": scenes, "steps": steps, "dt_s": env._dt,
@@ -186,7 +197,7 @@ def moving(agent, key: jax.Array, out: pathlib.Path, scenes: int = 16,
         for speed in speeds:
             for told in ("tracking", "start only"):
                 batch = moving_tasks(key, scenes, speed, a, told == "start only")
-                dist, l1, wrong = (np.asarray(x) for x in run(agent, keys, batch))
+                dist, l1, wrong = (np.asarray(x) for x in run(agent, keys, batch, acting))
                 late = dist[:, half].mean(axis=1)
                 row = {"action": action, "speed_cm_s": round(100 * speed, 1), "robot": told,
                        "palm_target_cm_late": np.quantile(100 * late, [0.25, 0.5, 0.75]
@@ -249,7 +260,6 @@ def namer_data(agent, xy_params, xy_config, key: jax.Array, scenes: int, steps: 
         scene: the namer splits train and test by scene), ``n_configs``, ``data``.
     """
     from grounding_jax import an, tl_xy
-    from grounding_jax.env import EnvParams
 
     k_scene, k_run = jax.random.split(key)
     if data is None:
@@ -263,7 +273,7 @@ def namer_data(agent, xy_params, xy_config, key: jax.Array, scenes: int, steps: 
     batch = Task(action=jnp.asarray(action, i32),
                  position=jnp.asarray(tl_xy.WORD_SLOT[layout, word], i32),
                  layout=jnp.asarray(layout, i32), placement=jnp.asarray(data.placement[scene_i]))
-    h = an.actor_sequences(agent, k_run, batch, steps, EnvParams(start_noise=start_noise),
+    h = an.actor_sequences(agent, k_run, batch, steps, params().replace(start_noise=start_noise),
                            env or Env(env_config()))
     tl_h = np.asarray(tl_xy.hidden(xy_params, jnp.asarray(data.bitmaps[scene_i]),
                                    jnp.asarray(tl_xy.SYMBOLS[layout, word]), xy_config))

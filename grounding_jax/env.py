@@ -93,7 +93,7 @@ class EnvParams:
         touch_target_penalty: added to the touch reward while touching the target.
         touch_moved_penalty: the free family's touch reward loses this much per metre the
             target has moved (``tasks.FREE``; the paper family does not use it).
-        touch_bonus: added to the free family's touch reward while the palm touches the
+        touch_bonus: added to the free family's touch reward while the arm touches the
             target (the paper family does not use it).
         wrong_move_threshold: metres a non-target object may move before it counts as moved.
         wrong_move_extra_steps: steps the episode goes on after a wrong object moved.
@@ -373,17 +373,23 @@ class Env:
             self._target_units(task, object_start)
         ])
         target_shape = self._slot_shape[task.layout, task.position]
+        target_xy = object_start[target_shape, :2]
         if task.placement is None:
             pose = self._pointing[task.position]
         else:  # the pointing map, interpolated at where the target is meant to be
-            pose = scale_joints(free.pointing_pose(object_start[target_shape, :2]))
+            pose = scale_joints(free.pointing_pose(target_xy))
         palm = sensordata[self._idx.sensor_palm_pos]
         is_target = jnp.arange(3) == target_shape
         moved = jnp.linalg.norm(self._objects(qpos) - object_start, axis=1)  # [shape]
+        now = self._objects(qpos)[target_shape]  # where the target is
         terms = {
             "point_l1": jnp.sum(jnp.abs(joints - pose)),
+            "touch_l1": jnp.sum(jnp.abs(joints - scale_joints(free.touch_pose(target_xy)))),
             "palm_target_dist": jnp.linalg.norm(palm - object_start[target_shape]),
-            "palm_target_now": jnp.linalg.norm(palm - self._objects(qpos)[target_shape]),
+            "palm_target_now": jnp.linalg.norm(palm - now),
+            # the palm's height over the target's centre and its distance across the table
+            "palm_over_target": palm[2] - now[2],
+            "palm_target_across": jnp.linalg.norm(palm[:2] - now[:2]),
             "touched_target": jnp.any(contacts & is_target).astype(jnp.float32),
             "touched_other": jnp.any(contacts & ~is_target).astype(jnp.float32),
             "target_moved": moved[target_shape],

@@ -158,25 +158,37 @@ def target_units(xy: jax.Array, target_obs: str) -> jax.Array:
                      f"'xy', 'population'")
 
 
-# ------------------------------------------------------------------------ the pointing map
+# ------------------------------------------------------------------- the pose maps (point, touch)
 POINTING_MAP = scene.ASSETS / "pointing_map.npz"
+TOUCH_MAP = scene.ASSETS / "touch_map.npz"
 
 
-@functools.lru_cache(maxsize=1)
+@functools.cache
+def _load_map(path: str) -> dict[str, np.ndarray]:
+    with np.load(path) as f:
+        return {k: f[k] for k in f.files}
+
+
 def pointing_map() -> dict[str, np.ndarray]:
     """The pointing poses solved on a 1 cm grid over the region and a 1 cm margin
     (``assets/make_pointing_map.py``): ``x`` [nx], ``y`` [ny], ``joints`` [nx, ny, 4]
     (radians; a cubic fit to the searched poses, which zigzag: ``raw_joints``), ``aim_deg``
     [nx, ny] (how far the palm's normal misses the object's centre)."""
-    with np.load(POINTING_MAP) as f:
-        return {k: f[k] for k in f.files}
+    return _load_map(str(POINTING_MAP))
 
 
-def pointing_pose(xy: jax.Array) -> jax.Array:
-    """The pointing pose (radians, ``[4]``) for an object at ``xy`` (metres): bilinear
-    interpolation of the map's four surrounding nodes (clamped at the map's border). Pure,
-    ``jit``- and ``vmap``-able."""
-    m = pointing_map()
+def touch_map() -> dict[str, np.ndarray]:
+    """The touching poses on the pointing map's grid (``assets/make_touch_map.py``): ``x``
+    [nx], ``y`` [ny], ``joints`` [nx, ny, 4] (radians: the palm pressed ``TOUCH_DEPTH`` into
+    the top face of an object standing at the node, palm as far down as four joints allow),
+    ``reach_error`` [nx, ny] (metres the palm site stays from that point: > 0 where the
+    arm cannot get that low)."""
+    return _load_map(str(TOUCH_MAP))
+
+
+def _interpolate(m: dict[str, np.ndarray], xy: jax.Array) -> jax.Array:
+    """Bilinear interpolation of a pose map's four nodes around ``xy`` (clamped at the map's
+    border)."""
     gx, gy = jnp.asarray(m["x"]), jnp.asarray(m["y"])
     joints = jnp.asarray(m["joints"])
     fx = jnp.clip((xy[0] - gx[0]) / (gx[1] - gx[0]), 0.0, gx.shape[0] - 1.0)
@@ -186,6 +198,19 @@ def pointing_pose(xy: jax.Array) -> jax.Array:
     tx, ty = fx - i, fy - j
     return ((1 - tx) * (1 - ty) * joints[i, j] + tx * (1 - ty) * joints[i + 1, j]
             + (1 - tx) * ty * joints[i, j + 1] + tx * ty * joints[i + 1, j + 1])
+
+
+def pointing_pose(xy: jax.Array) -> jax.Array:
+    """The pointing pose (radians, ``[4]``) for an object at ``xy`` (metres): bilinear
+    interpolation of the map's four surrounding nodes (clamped at the map's border). Pure,
+    ``jit``- and ``vmap``-able."""
+    return _interpolate(pointing_map(), xy)
+
+
+def touch_pose(xy: jax.Array) -> jax.Array:
+    """The touching pose (radians, ``[4]``) for an object at ``xy`` (metres), interpolated in
+    :func:`touch_map` as :func:`pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
+    return _interpolate(touch_map(), xy)
 
 
 # ------------------------------------------------------------------------ a moving target

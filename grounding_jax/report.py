@@ -237,6 +237,18 @@ def _networks(heads: list[int] | None) -> str:
             + " -- an actor-critic of the paper's sizes each.")
 
 
+def _free_touch_text(free: dict) -> str:
+    """What the free family's touch reward was in the run that wrote ``free``."""
+    h = free["hyper"]
+    if free.get("touch_reward") != "pose":  # runs before the touching pose
+        return ("touch pays minus the palm's distance to where the target is now until it "
+                "touches it, then nothing, less 10 per metre the target moved.")
+    return ("touch, like point, pays minus the L1 distance to a pose: the touching pose (the "
+            "palm pressed on the target's top; IK poses on the pointing map's grid, "
+            f"interpolated inside jit), plus {h.get('touch_bonus', 0.0)} while touching it, "
+            f"less {h.get('touch_moved_penalty', 10.0)} per metre the target moved.")
+
+
 def _free_report(free: dict | None, strip: dict | None) -> list[str]:
     if not free:
         return ["", "Not in this metrics.json: the free family's action learner (made before "
@@ -254,8 +266,7 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
         "but for gamma and the actor's rate; README \"Beyond the paper\" has the "
         "measurements behind each change). The "
         "free family's rewards: every action pays -0.5 while touching a non-target object; "
-        "touch pays minus the palm's distance to where the target is now until it touches "
-        "it, then nothing, less 10 per metre the target moved. Point's reward and criterion "
+        + _free_touch_text(free) + " Point's reward and criterion "
         "use the pointing map (IK poses on a 1 cm grid, smoothed, interpolated inside jit). "
         f"Judged like the paper family (greedy, 100 steps, from home) on "
         f"{free['eval_placements']} held-out random placements x 3 slots per action; each "

@@ -16,9 +16,12 @@ region (``target_obs="population"``: the ``"free"`` task set). Action (``action_
 the change of the 4 scaled joints.
 
 Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
-joints to the position's stored pointing pose; ``palm_target_dist``: metres from the palm to
-the target's start; ``palm_target_now``: ... to where the target is now; ``touched_target`` /
-``touched_other``: 0/1) and the env's traced params.
+joints to the position's stored pointing pose; ``touch_l1``: ... to the touching pose of
+where the target is meant to be (:func:`placement.touch_pose`); ``palm_target_dist``: metres
+from the palm to the target's start; ``palm_target_now``: ... to where the target is now;
+``palm_over_target`` / ``palm_target_across``: the palm's height over the target's centre
+and its distance from it across the table; ``touched_target`` / ``touched_other``: 0/1) and
+the env's traced params.
 Success rules judge one greedy episode from the quantities ``al_experiments.episode_success``
 measures (``final_point_l1``, ``point_l1_range``, ``touched_late``, ``target_moved``; an
 episode that moved a wrong object fails whatever the rule says).
@@ -192,10 +195,11 @@ def _free_point_reward(t: Terms, params: Any) -> jax.Array:
 
 
 def _free_touch_reward(t: Terms, params: Any) -> jax.Array:
-    # the palm's distance to the target until it touches it (then 0: pressing on gains
-    # nothing), and a penalty on how far the target was moved: touch it, do not push it
-    reach = jnp.where(t["touched_target"] > 0, -params.touch_bonus, t["palm_target_now"])
-    return -reach - params.touch_moved_penalty * t["target_moved"] + _avoid(t, params)
+    # a pose to reach, as point's: the palm pressed down on the target's top, which the table
+    # holds still (a reward on the palm's distance to the target's centre drove it through
+    # the object's side); a bonus while touching; a penalty on how far the target moved
+    return (-t["touch_l1"] + jnp.where(t["touched_target"] > 0, params.touch_bonus, 0.0)
+            - params.touch_moved_penalty * t["target_moved"] + _avoid(t, params))
 
 
 def _free_push_reward(t: Terms, params: Any) -> jax.Array:
@@ -207,10 +211,11 @@ def _free_push_reward(t: Terms, params: Any) -> jax.Array:
 #: plain scaled (x, y) learned worse: README "Beyond the paper"). The success rules are the
 #: paper family's; the rewards differ in two ways: every action pays ``touch_other_penalty``
 #: while the arm touches a non-target object or one has moved (with objects anywhere no fixed
-#: detour around the neighbours exists), and touch pays minus the palm's distance to where the
-#: target is now until it touches it, then nothing, less ``touch_moved_penalty`` per metre
-#: the target has moved (instead of the paper's penalty for touching it, under which an actor
-#: hovers).
+#: detour around the neighbours exists), and touch, like point, reaches for a pose: minus the
+#: L1 distance to the touching pose of where the target is meant to be (``touch_l1``: the
+#: palm pressed on its top; :func:`placement.touch_pose`), plus ``touch_bonus`` while the arm
+#: touches it, less ``touch_moved_penalty`` per metre it has moved (instead of the paper's
+#: penalty for touching it, under which an actor hovers).
 FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
                         Action("touch", _free_touch_reward, _touch_success),
                         Action("push", _free_push_reward, _push_success)),

@@ -120,13 +120,15 @@ class TrainedAN:
 @dataclasses.dataclass(frozen=True)
 class TrainedFree:
     """The free family's modules: the continuous TL, an actor told the target's (x, y), and
-    (when trained) a namer over the two's hidden layers."""
+    (when trained) a namer over the two's hidden layers. ``params``: the env parameters the
+    actor was trained with (its action scale), which it acts with."""
 
     xy_params: tl_xy.XYParams
     xy_config: tl_xy.XYConfig
     al: TrainedAL
     env_config: EnvConfig
     an: TrainedAN | None = None
+    params: EnvParams = DEFAULT_PARAMS
 
     def _inputs(self, rgb: np.ndarray, layout: int, word: str) -> tuple[jax.Array, jax.Array]:
         w = tl_data.word_index(word)
@@ -172,7 +174,7 @@ class Robot:
         return self._performers[steps]
 
     def perform(self, action: str, word: str, layout: int = 0, steps: int = 100,
-                key: jax.Array | None = None, params: EnvParams = DEFAULT_PARAMS,
+                key: jax.Array | None = None, params: EnvParams | None = None,
                 placement: Any = None) -> dict:
         """Hear "<action> <word>" in scene ``layout``: the TL finds the object, the actor
         does the action for ``steps`` steps, the AN names what was done.
@@ -185,7 +187,8 @@ class Robot:
             steps: RL steps to act.
             key: PRNG key (the reset's; with ``placement="random"`` split once: placement,
                 reset).
-            params: env parameters.
+            params: env parameters (default: those the acting robot was trained with --
+                ``EnvParams()`` for the paper's, ``free.params`` with a placement).
             placement: None (the paper's slots), ``"random"`` or coordinates ``[3, 2|3]``
                 (see :func:`make_task`): objects anywhere, seen through the eye camera
                 (needs ``self.free``).
@@ -200,6 +203,7 @@ class Robot:
             raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
         if placement is not None:
             return self._perform_free(action, word, layout, steps, key, params, placement)
+        params = DEFAULT_PARAMS if params is None else params
         bitmap, symbols = _configuration(layout, word)  # read once: localize and name use it
         position = int(self.tl.position(bitmap, symbols))
         task = make_task(action, position, layout, self.env_config.task_set)
@@ -214,13 +218,15 @@ class Robot:
 
 
     def _perform_free(self, action: str, word: str, layout: int, steps: int,
-                      key: jax.Array | None, params: EnvParams, placement: Any) -> dict:
+                      key: jax.Array | None, params: EnvParams | None, placement: Any
+                      ) -> dict:
         from grounding_jax import vision
 
         if self.free is None:
             raise ValueError("placement: these modules hold no free-family robot (train.py "
                              "saves one); accepted: None")
         key = jax.random.key(0) if key is None else key
+        params = self.free.params if params is None else params
         k_place, k_reset = jax.random.split(key)
         cfg = self.free.env_config
         task = make_task(action, word, layout, cfg.task_set, placement=placement, key=k_place)
@@ -239,6 +245,12 @@ class Robot:
         return {"position": scene.POSITIONS[slot], "true_position": scene.POSITIONS[slot],
                 "xy": xy, "true_xy": placed[slot, :2], "placement": placed, "image": image,
                 "final_reward": float(traj.reward[-1]), "trajectory": traj, "named": named}
+
+
+def _params_json(params: EnvParams) -> dict[str, float | int]:
+    """Env parameters as JSON numbers (for config.json)."""
+    return {f.name: np.asarray(getattr(params, f.name)).item()
+            for f in dataclasses.fields(params)}
 
 
 def _words(outputs: jax.Array, config: esn.ESNConfig) -> tuple[str, str]:
@@ -262,6 +274,7 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
         if "free" in config:  # checked here so that a bad one is refused before restoring
             f = config["free"]
             tl_xy.XYConfig(**f["xy"]), cacla.CaclaConfig(**f["al"]), EnvConfig(**f["env"])
+            EnvParams(**f.get("params", {})).validate()
             if "an" in f:
                 esn.ESNConfig(**f["an"])
         t = config["tl"]
@@ -316,8 +329,10 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         env_config: the env the agent was trained in.
         extra: JSON-able notes kept in the config (e.g. the profile and seed).
         free_modules: the free family's robot, optional: ``{"xy_params", "xy_config"
-            (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}`` and,
-            when a namer was trained for it, ``"net"`` and ``"esn_config"``.
+            (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}``,
+            ``"params"`` (the :class:`EnvParams` it was trained with; default
+            ``EnvParams()``) and, when a namer was trained for it, ``"net"`` and
+            ``"esn_config"``.
     """
     directory = pathlib.Path(directory)
     config = {
@@ -332,7 +347,8 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
     if free_modules is not None:
         config["free"] = {"xy": dataclasses.asdict(free_modules["xy_config"]),
                           "al": dataclasses.asdict(free_modules["al_config"]),
-                          "env": dataclasses.asdict(free_modules["env_config"])}
+                          "env": dataclasses.asdict(free_modules["env_config"]),
+                          "params": _params_json(free_modules.get("params", DEFAULT_PARAMS))}
         tree["free"] = {"xy": free_modules["xy_params"], "al": free_modules["agent"]}
         if free_modules.get("net") is not None:
             config["free"]["an"] = dataclasses.asdict(free_modules["esn_config"])
@@ -378,7 +394,9 @@ def load(directory: str | pathlib.Path) -> Robot:
             xy_params=tree["free"]["xy"], xy_config=tl_xy.XYConfig(**f["xy"]),
             al=TrainedAL(tree["free"]["al"], cacla.CaclaConfig(**f["al"])),
             env_config=EnvConfig(**f["env"]),
-            an=TrainedAN(tree["free"]["an"], esn.ESNConfig(**f["an"])) if "an" in f else None)
+            an=TrainedAN(tree["free"]["an"], esn.ESNConfig(**f["an"])) if "an" in f else None,
+            # saves before the field existed acted with the defaults
+            params=EnvParams(**f.get("params", {})))
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
                  env_config=env_cfg, config=config, free=modules_free)

@@ -48,6 +48,31 @@ def test_the_pointing_map_is_exact_at_its_nodes_and_aims_between_them():
         assert 0.075 < dist < 0.155
 
 
+def test_the_touch_map_presses_the_palm_on_the_targets_top():
+    m = free.touch_map()
+    pm = free.pointing_map()
+    assert m["joints"].shape == pm["joints"].shape
+    np.testing.assert_array_equal(m["x"], pm["x"])
+    np.testing.assert_array_equal(m["y"], pm["y"])
+    top = scene.TABLE_Z + 2 * scene.OBJECT_HALF - float(m["depth"])
+    pose = jax.jit(free.touch_pose)
+    np.testing.assert_allclose(pose(jnp.array([m["x"][4], m["y"][9]])), m["joints"][4, 9],
+                               atol=1e-6)
+    # between nodes the palm site lands within a few mm of its point where the arm reaches it
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(40):
+        xy = np.array([rng.uniform(*free.REACH_X), rng.uniform(*free.REACH_Y)], np.float32)
+        i = int(np.searchsorted(m["x"], xy[0])) - 1
+        j = int(np.searchsorted(m["y"], xy[1])) - 1
+        if m["reach_error"][i:i + 2, j:j + 2].max() > 1e-3:
+            continue
+        palm = ik.palm_position(np.asarray(pose(jnp.asarray(xy)), float))
+        assert np.linalg.norm(palm - np.array([*xy, top])) < 0.004
+        checked += 1
+    assert checked >= 20  # most of the region is reached
+
+
 def test_the_free_actor_is_told_the_targets_coordinates(env):
     n = tasks.POPULATION_GRID[0] * tasks.POPULATION_GRID[1]
     assert tasks.FREE.target_obs == "population"
@@ -67,6 +92,11 @@ def test_the_free_actor_is_told_the_targets_coordinates(env):
     p = env.reset(jax.random.key(0), gj.make_task("point", "right", 5, "free", placement=placed))
     want = jnp.sum(jnp.abs(p.obs[:4] - scale_joints(free.pointing_pose(placed[2, :2]))))
     np.testing.assert_allclose(p.metrics["point_l1"], want, rtol=1e-5)
+    # touch's reward: minus the L1 to the touching pose (nothing touched or moved at reset)
+    t = env.reset(jax.random.key(0), gj.make_task("touch", "right", 5, "free", placement=placed))
+    want = jnp.sum(jnp.abs(t.obs[:4] - scale_joints(free.touch_pose(placed[2, :2]))))
+    np.testing.assert_allclose(t.metrics["touch_l1"], want, rtol=1e-5)
+    np.testing.assert_allclose(t.reward, -want, rtol=1e-5)
 
 
 def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):
@@ -126,7 +156,8 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
     net = esn.init(k, esn_cfg)
     modules = {"xy_params": xy_params, "xy_config": xy_cfg, "agent": free_agent,
                "al_config": beyond.FREE_LEARNER,
-               "env_config": beyond.env_config(), "net": net, "esn_config": esn_cfg}
+               "env_config": beyond.env_config(), "net": net, "esn_config": esn_cfg,
+               "params": beyond.params()}
     tl_cfg = tl.TLConfig(max_hidden=5, max_replication=1)
     tl_hp = tl.TLHyper(hidden=5, replication=1)
     trained.save(tmp_path / "m", tl.init(k, tl_hp, tl_cfg), tl_hp,
@@ -149,6 +180,14 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
     # what the actor heard is the TL's estimate, not the truth
     np.testing.assert_allclose(out["trajectory"].obs[0, 8:],
                                free.target_units(out["xy"], "population"), atol=1e-5)
+    # it acts with the env parameters it was trained with (the free family's action scale)
+    assert float(robot.free.params.action_scale) == beyond.FREE_TUNED["action_scale"] != 1 / 3
+    same = robot.perform("push", "red", 4, steps=3, placement="random", key=jax.random.key(5),
+                         params=beyond.params())
+    paper = robot.perform("push", "red", 4, steps=3, placement="random", key=jax.random.key(5),
+                          params=gj.EnvParams())
+    np.testing.assert_array_equal(out["trajectory"].qpos, same["trajectory"].qpos)
+    assert not np.array_equal(out["trajectory"].qpos, paper["trajectory"].qpos)
 
 
 def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp_path,
