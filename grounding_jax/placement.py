@@ -161,6 +161,7 @@ def target_units(xy: jax.Array, target_obs: str) -> jax.Array:
 # ------------------------------------------------------------------- the pose maps (point, touch)
 POINTING_MAP = scene.ASSETS / "pointing_map.npz"
 TOUCH_MAP = scene.ASSETS / "touch_map.npz"
+PUSH_MAP = scene.ASSETS / "push_map.npz"
 
 
 @functools.cache
@@ -184,6 +185,14 @@ def touch_map() -> dict[str, np.ndarray]:
     ``reach_error`` [nx, ny] (metres the palm site stays from that point: > 0 where the
     arm cannot get that low)."""
     return _load_map(str(TOUCH_MAP))
+
+
+def push_map() -> dict[str, np.ndarray]:
+    """The pushing poses on the pointing map's grid (``assets/make_touch_map.py --action
+    push``): ``x``, ``y``, ``joints`` [nx, ny, 4] (radians: the palm site ``offset`` from the
+    centre of an object standing at the node -- 1 cm toward the robot, 0.5 cm up: at its near
+    face, pushed 1.5-2.5 cm), ``reach_error`` [nx, ny] (metres)."""
+    return _load_map(str(PUSH_MAP))
 
 
 def _interpolate(m: dict[str, np.ndarray], xy: jax.Array) -> jax.Array:
@@ -211,6 +220,12 @@ def touch_pose(xy: jax.Array) -> jax.Array:
     """The touching pose (radians, ``[4]``) for an object at ``xy`` (metres), interpolated in
     :func:`touch_map` as :func:`pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
     return _interpolate(touch_map(), xy)
+
+
+def push_pose(xy: jax.Array) -> jax.Array:
+    """The pushing pose (radians, ``[4]``) for an object at ``xy`` (metres), interpolated in
+    :func:`push_map` as :func:`pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
+    return _interpolate(push_map(), xy)
 
 
 # ------------------------------------------------------------------------ a moving target

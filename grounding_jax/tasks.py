@@ -16,8 +16,10 @@ region (``target_obs="population"``: the ``"free"`` task set). Action (``action_
 the change of the 4 scaled joints.
 
 Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
-joints to the position's stored pointing pose; ``touch_l1``: ... to the touching pose of
-where the target is meant to be (:func:`placement.touch_pose`); ``palm_target_dist``: metres
+joints to the position's stored pointing pose; ``touch_l1`` / ``push_l1``: ... to the touching
+/ pushing pose of where the target is meant to be (:func:`placement.touch_pose`,
+:func:`placement.push_pose`; 0 in the paper's family, whose rewards use neither);
+``palm_target_dist``: metres
 from the palm to the target's start; ``palm_target_now``: ... to where the target is now;
 ``palm_over_target`` / ``palm_target_across``: the palm's height over the target's centre
 and its distance from it across the table; ``touched_target`` / ``touched_other``: 0/1) and
@@ -203,6 +205,8 @@ def _free_touch_reward(t: Terms, params: Any) -> jax.Array:
 
 
 def _free_push_reward(t: Terms, params: Any) -> jax.Array:
+    # (minus the L1 to a pushing pose, ``push_l1``, as touch's, was tried and not kept:
+    # README "Beyond the paper")
     return -t["palm_target_dist"] + _avoid(t, params)
 
 

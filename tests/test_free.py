@@ -48,14 +48,21 @@ def test_the_pointing_map_is_exact_at_its_nodes_and_aims_between_them():
         assert 0.075 < dist < 0.155
 
 
-def test_the_touch_map_presses_the_palm_on_the_targets_top():
-    m = free.touch_map()
+@pytest.mark.parametrize("action", ["touch", "push"])
+def test_the_touch_and_push_maps_put_the_palm_at_their_point(action):
+    """Touch: the palm site 1 cm into the target's top; push: at its near face, 1 cm toward
+    the robot from its centre and 0.5 cm above it."""
+    m = free.touch_map() if action == "touch" else free.push_map()
     pm = free.pointing_map()
     assert m["joints"].shape == pm["joints"].shape
     np.testing.assert_array_equal(m["x"], pm["x"])
     np.testing.assert_array_equal(m["y"], pm["y"])
-    top = scene.TABLE_Z + 2 * scene.OBJECT_HALF - float(m["depth"])
-    pose = jax.jit(free.touch_pose)
+    if action == "touch":
+        off = np.array([0.0, 0.0, scene.OBJECT_HALF - float(m["depth"])])
+    else:
+        off = np.asarray(m["offset"], float)
+        np.testing.assert_allclose(off, [0.01, 0.0, 0.005], atol=1e-7)
+    pose = jax.jit(free.touch_pose if action == "touch" else free.push_pose)
     np.testing.assert_allclose(pose(jnp.array([m["x"][4], m["y"][9]])), m["joints"][4, 9],
                                atol=1e-6)
     # between nodes the palm site lands within a few mm of its point where the arm reaches it
@@ -68,7 +75,8 @@ def test_the_touch_map_presses_the_palm_on_the_targets_top():
         if m["reach_error"][i:i + 2, j:j + 2].max() > 1e-3:
             continue
         palm = ik.palm_position(np.asarray(pose(jnp.asarray(xy)), float))
-        assert np.linalg.norm(palm - np.array([*xy, top])) < 0.004
+        point = np.array([*xy, scene.TABLE_Z + scene.OBJECT_HALF]) + off
+        assert np.linalg.norm(palm - point) < 0.004
         checked += 1
     assert checked >= 20  # most of the region is reached
 
@@ -97,6 +105,13 @@ def test_the_free_actor_is_told_the_targets_coordinates(env):
     want = jnp.sum(jnp.abs(t.obs[:4] - scale_joints(free.touch_pose(placed[2, :2]))))
     np.testing.assert_allclose(t.metrics["touch_l1"], want, rtol=1e-5)
     np.testing.assert_allclose(t.reward, -want, rtol=1e-5)
+    # push's reward: minus the palm's distance to the target's centre; the pushing pose's
+    # L1 (a reward tried, benchmarks/free_tuning.py --push-reward pose) is measured beside it
+    u = env.reset(jax.random.key(0), gj.make_task("push", "right", 5, "free", placement=placed))
+    want = jnp.sum(jnp.abs(u.obs[:4] - scale_joints(free.push_pose(placed[2, :2]))))
+    np.testing.assert_allclose(u.metrics["push_l1"], want, rtol=1e-5)
+    assert float(want) > 0.1  # home is far from it
+    np.testing.assert_allclose(u.reward, -u.metrics["palm_target_dist"], rtol=1e-6)
 
 
 def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):

@@ -1,22 +1,32 @@
-"""Touching poses over the whole reachable table: write ``touch_map.npz``.
+"""Touching and pushing poses over the whole reachable table: write ``touch_map.npz`` and
+``push_map.npz``.
 
-The free family's touch reward is the L1 distance of the scaled joints to a touching pose of
-the target (``tasks.FREE``), as point's is to a pointing pose. A touching pose puts the palm
-site ``TOUCH_DEPTH`` below the top face of an object standing at (x, y): the palm presses down
-on the object's top, which the table holds still, instead of shoving it sideways. A scripted
-arm that moves there gently (README "Beyond the paper") touches 94% of the held-out targets
-without moving them 3 cm.
+The free family's touch reward is the L1 distance of the scaled joints to a pose for the
+target (``tasks.FREE``), as point's is to a pointing pose; the same for push was tried and not
+kept (README "Beyond the paper"; ``benchmarks/free_tuning.py --push-reward pose``).
+
+- A *touching* pose puts the palm site ``TOUCH_DEPTH`` below the top face of an object
+  standing at (x, y): the palm presses down on the object's top, which the table holds still,
+  instead of shoving it sideways. A scripted arm that moves there gently (README "Beyond the
+  paper") touches 94% of the held-out targets without moving them 3 cm.
+- A *pushing* pose puts the palm site ``PUSH_BEHIND`` on the robot's side of the object's
+  centre, ``PUSH_RISE`` above it: the palm comes to the object's near face and, reaching the
+  pose, has pushed it 1.5-2.5 cm away from the robot (``benchmarks/scripted_touch.py --action
+  push``: 93% of the held-out pushes). In the region's far-right corner (x <= -0.255 m,
+  y >= 0.285 m) neither this point nor the object's centre at mid height is within the
+  arm's reach (``reach_error`` up to 7 cm), and no push of 2 cm is.
 
 The nodes are the pointing map's (``pointing_map.npz``: a 1 cm grid over the region and a
 1 cm margin). Each is solved with ``ik.solve`` (damped least squares on the palm site's
 position, palm down in its null space), from the node's pointing pose and from every solved
 neighbour's pose, keeping the result nearest the point (ties: the one nearest the
 neighbours, so poses change smoothly from node to node). The nodes are solved outward from
-the grid's centre. Where four joints cannot bring the palm that low (the near-left edge by
-up to 1.6 cm, the far-right corner by up to 7 cm) the pose is the nearest the arm gets, and
+the grid's centre. Where four joints cannot bring the palm there (touch: the near-left edge
+by up to 1.6 cm, the far-right corner by up to 7 cm) the pose is the nearest the arm gets, and
 ``reach_error`` says by how much it misses.
 
-Run once, from the repository root: ``python assets/make_touch_map.py`` (about 30 s).
+Run once, from the repository root: ``python assets/make_touch_map.py [--action push]``
+(about 30 s each).
 """
 
 from __future__ import annotations
@@ -31,16 +41,29 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))  # the chec
 
 from grounding_jax import ik, placement, scene  # noqa: E402
 
-OUT = scene.ASSETS / "touch_map.npz"
-#: Metres below the object's top face that the palm site is sent to (the palm presses on it).
+OUT = {"touch": placement.TOUCH_MAP, "push": placement.PUSH_MAP}
+#: Metres below the object's top face that touch sends the palm site to (it presses on it).
 TOUCH_DEPTH = 0.01
+#: Push sends the palm site this far toward the robot (+x) from the object's centre ...
+PUSH_BEHIND = 0.01
+#: ... and this far above the centre (metres).
+PUSH_RISE = 0.005
 ITERS = 150  # IK iterations per start pose
 
 
-def main(depth: float = TOUCH_DEPTH, out: pathlib.Path = OUT) -> None:
+def offset(action: str, depth: float = TOUCH_DEPTH) -> np.ndarray:
+    """Where the palm site goes relative to the object's centre (metres, [3])."""
+    if action == "touch":
+        return np.array([0.0, 0.0, scene.OBJECT_HALF - depth])
+    return np.array([PUSH_BEHIND, 0.0, PUSH_RISE])
+
+
+def solve_map(off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """IK poses ``[nx, ny, 4]`` (radians) putting the palm site at each node's object centre
+    plus ``off``, and their reach errors ``[nx, ny]`` (metres)."""
     pm = placement.pointing_map()
     xs, ys, pointing = pm["x"], pm["y"], pm["joints"].astype(np.float64)
-    z = scene.TABLE_Z + 2 * scene.OBJECT_HALF - depth
+    z = scene.TABLE_Z + scene.OBJECT_HALF
     nx, ny = len(xs), len(ys)
     poses = np.zeros((nx, ny, 4))
     err = np.full((nx, ny), np.inf)
@@ -52,33 +75,48 @@ def main(depth: float = TOUCH_DEPTH, out: pathlib.Path = OUT) -> None:
         near = [(i + a, j + b) for a in (-1, 0, 1) for b in (-1, 0, 1)
                 if 0 <= i + a < nx and 0 <= j + b < ny and solved[i + a, j + b]]
         best = None
+        point = np.array([xs[i], ys[j], z]) + off
         for start in [pointing[i, j]] + [poses[n] for n in near]:
-            q, e = ik.solve(np.array([xs[i], ys[j], z]), start, iters=ITERS)
+            q, e = ik.solve(point, start, iters=ITERS)
             jump = (np.mean([np.abs(ik.scaled(q) - ik.scaled(poses[n])).sum() for n in near])
                     if near else 0.0)
             rank = (round(e, 3), jump)
             if best is None or rank < best[0]:
                 best = (rank, q, e)
         poses[i, j], err[i, j], solved[i, j] = best[1], best[2], True
+    return poses, err
+
+
+def main(action: str = "touch", depth: float = TOUCH_DEPTH,
+         out: pathlib.Path | None = None) -> None:
+    pm = placement.pointing_map()
+    xs, ys = pm["x"], pm["y"]
+    off = offset(action, depth)
+    poses, err = solve_map(off)
     in_x = (xs >= placement.REACH_X[0] - 1e-6) & (xs <= placement.REACH_X[1] + 1e-6)
     in_y = (ys >= placement.REACH_Y[0] - 1e-6) & (ys <= placement.REACH_Y[1] + 1e-6)
     inside = in_x[:, None] & in_y[None]
-    print(f"palm site to its point in the region: median {1000 * np.median(err[inside]):.1f} "
-          f"mm, {np.mean(err[inside] <= 0.005):.0%} of the nodes within 5 mm, max "
-          f"{1000 * err[inside].max():.0f} mm")
+    print(f"{action}: palm site to its point in the region: median "
+          f"{1000 * np.median(err[inside]):.1f} mm, {np.mean(err[inside] <= 0.005):.0%} of the "
+          f"nodes within 5 mm, max {1000 * err[inside].max():.0f} mm")
+    out = OUT[action] if out is None else out
+    extra = ({"depth": np.float32(depth)} if action == "touch"
+             else {"offset": off.astype(np.float32)})
     np.savez_compressed(out, x=xs.astype(np.float32), y=ys.astype(np.float32),
                         joints=poses.astype(np.float32), reach_error=err.astype(np.float32),
-                        depth=np.float32(depth))
+                        **extra)
     print("wrote", out)
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--action", choices=tuple(OUT), default="touch")
     ap.add_argument("--depth", type=float, default=TOUCH_DEPTH,
-                    help=f"metres below the top face (default {TOUCH_DEPTH})")
-    ap.add_argument("--out", type=pathlib.Path, default=OUT, help=f"default {OUT}")
+                    help=f"touch: metres below the top face (default {TOUCH_DEPTH})")
+    ap.add_argument("--out", type=pathlib.Path, default=None,
+                    help="default grounding_jax/assets/<action>_map.npz")
     args = ap.parse_args()
     if not 0.0 <= args.depth <= 2 * scene.OBJECT_HALF:
         ap.error(f"--depth: must lie in [0, {2 * scene.OBJECT_HALF}] m (the object's "
                  f"height), got {args.depth}")
-    main(args.depth, args.out)
+    main(args.action, args.depth, args.out)
