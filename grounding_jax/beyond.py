@@ -7,8 +7,8 @@ episode places the objects anywhere on the reachable table (:func:`placement.sam
 actor is told the target's coordinates (as a population code, :func:`placement.population`;
 from the simulator while it learns, from the continuous TL :mod:`grounding_jax.tl_xy` when the
 robot performs). Point's reward and success use the pointing map (IK poses on a 1 cm grid,
-smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`), and touch's reward
-the touching map in the same way (the palm pressed on the target's top;
+smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`), and touch's reward the
+touching map in the same way (the palm pressed on the target's top;
 :func:`placement.touch_pose`).
 
 The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
@@ -138,7 +138,8 @@ def train(key: jax.Array, seeds: int, phase1: int, phase2: int, eval_placements:
            "eval_placements": eval_placements, "success": tables, "final": final,
            "train_s": time.perf_counter() - t,
            "rl_steps": int(np.asarray(metrics["steps"]).sum()), "median_agent": median_agent,
-           "hyper": FREE_TUNED, "heads": list(FREE_LEARNER.heads), "touch_reward": "pose"}
+           "hyper": FREE_TUNED, "heads": list(FREE_LEARNER.heads), "touch_reward": "pose",
+           "push_reward": "centre"}
     return res, agents
 
 
