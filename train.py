@@ -256,16 +256,10 @@ def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agen
 
 
 def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[dict, dict]:
-    """Beyond the paper: the target localizer for objects placed anywhere (``tl_xy``), the
-    free family's actor trained on random placements and judged on held-out ones (told the
-    target's coordinates by the simulator, then by the TL through the eye camera), and a
-    moving target. Returns (results, the modules to save: TL-xy seed 0, the median agent)."""
-    import jax
-    import numpy as np
-
-    from grounding_jax import al_experiments, tl_xy, trained
-    from grounding_jax import beyond as B
-    from grounding_jax.env import Env
+    """Beyond the paper: the target localizer for objects placed anywhere (``tl_xy``), then
+    :func:`beyond_robot`. Returns (results, the modules to save: TL-xy seed 0, the median
+    agent)."""
+    from grounding_jax import tl_xy
 
     cfg = tl_xy.XYConfig(hidden=st["xy_hidden"], steps=st["xy_steps"],
                          eval_every=max(st["xy_steps"] // 10, 1))
@@ -274,6 +268,22 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
     print(f"xy    TL with free placement: held-out error median "
           f"{res['median_cm_median_seed']:.2f} cm, 95th percentile "
           f"{res['p95_cm_median_seed']:.2f} cm (median seed)", flush=True)
+    free, modules = beyond_robot(key_free, out, st, backend, xy_params, cfg)
+    return {"tl_xy": res, "free": free}, modules
+
+
+def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params, cfg
+                 ) -> tuple[dict, dict]:
+    """The free family's actor trained on random placements and judged on held-out ones
+    (told the target's coordinates by the simulator, then by the continuous TL ``xy_params``
+    through the eye camera), a moving target, and the namer. Returns (results, modules)."""
+    import jax
+    import numpy as np
+
+    from grounding_jax import al_experiments, trained
+    from grounding_jax import beyond as B
+    from grounding_jax.env import Env
+
     k_train, k_eyes, k_eyes_eval, k_move, k_an = jax.random.split(key_free, 5)
     free, agents = B.train(k_train, st["free_seeds"], st["free_phase1"], st["free_phase2"],
                            st["free_placements"], backend=backend,
@@ -300,7 +310,7 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
           f"{ba['touch']:.2f} push {ba['push']:.2f}; through its eyes (TL): point "
           f"{eb['point']:.2f} touch {eb['touch']:.2f} push {eb['push']:.2f}; named "
           f"{free['an']['test']['acc_mean']:.3f} of held-out scenes' sequences", flush=True)
-    return {"tl_xy": res, "free": free}, modules
+    return free, modules
 
 
 def camera_strip(out: pathlib.Path, key) -> dict:
