@@ -158,7 +158,7 @@ def target_units(xy: jax.Array, target_obs: str) -> jax.Array:
                      f"'xy', 'population'")
 
 
-# ------------------------------------------------------------------- the pose maps (point, touch)
+# ------------------------------------------------------------- the pose maps (point, touch, push)
 POINTING_MAP = scene.ASSETS / "pointing_map.npz"
 TOUCH_MAP = scene.ASSETS / "touch_map.npz"
 PUSH_MAP = scene.ASSETS / "push_map.npz"
