@@ -243,14 +243,11 @@ def _free_touch_text(free: dict) -> str:
     if free.get("touch_reward") != "pose":  # runs before the touching pose
         return ("touch pays minus the palm's distance to where the target is now until it "
                 "touches it, then nothing, less 10 per metre the target moved.")
-    text = ("touch, like point, pays minus the L1 distance to a pose: the touching pose (the "
+    return ("touch, like point, pays minus the L1 distance to a pose: the touching pose (the "
             "palm pressed on the target's top; IK poses on the pointing map's grid, "
             f"interpolated inside jit), plus {h.get('touch_bonus', 0.0)} while touching it, "
-            f"less {h.get('touch_moved_penalty', 10.0)} per metre the target moved")
-    if free.get("push_reward") == "pose":
-        return (text + "; push likewise minus the L1 distance to the pushing pose (the palm "
-                "at the target's near face, 1 cm from its centre toward the robot).")
-    return text + "; push pays minus the palm's distance to the target's centre."
+            f"less {h.get('touch_moved_penalty', 10.0)} per metre the target moved; push pays "
+            "minus the palm's distance to the target's centre.")
 
 
 def _free_report(free: dict | None, strip: dict | None) -> list[str]:
