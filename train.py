@@ -11,6 +11,8 @@ are saved to ``<out>/modules`` (load them with ``grounding_jax.load``).
     python train.py --profile paper      # the paper's settings (600 epochs, full grids)
     python train.py --set tl_epochs=50   # override one setting of the profile
     python train.py --resume             # continue the sweeps of an interrupted run
+    python train.py --profile paper --only free-robot   # the free family's robot again, on
+                                         # the continuous TL of the run already in --out
 """
 
 from __future__ import annotations
@@ -66,6 +68,8 @@ AL_SWEEPS = {
     "fig9a_actor_lr": {"quick": [*_QUICK_SWEEP_EPISODES, "actor_lr=0.0001,0.001,0.01"]},
     "fig9b_actor_hidden": {"quick": [*_QUICK_SWEEP_EPISODES, "actor_hidden=10,40"]},
 }
+#: the parts ``--only`` re-runs
+ONLY = ("free-robot",)
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2"}
 
@@ -107,6 +111,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                          "checkpoints (else they start over)")
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite REPORT.md from the metrics.json already in --out; run nothing")
+    ap.add_argument("--only", choices=ONLY, default=None,
+                    help="re-run one part of a run already in --out with the keys a whole run "
+                         "gives it, keeping the rest (free-robot: the free family's actor, its "
+                         "eyes, the moving target, the namer and the camera strip, on the saved "
+                         "continuous TL)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a profile setting (e.g. tl_epochs=50, tl_hidden=5,50)")
     args = ap.parse_args(argv)
@@ -334,6 +343,56 @@ def camera_strip(out: pathlib.Path, key) -> dict:
             "named": list(res["named"]) if res["named"] else None}
 
 
+def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_strip) -> int:
+    """``--only free-robot``: :func:`beyond_robot` and :func:`camera_strip` again with the keys
+    a whole run gives them, on the continuous TL saved in ``out/../modules``; the modules are
+    saved again (the paper's unchanged, the free family's new) and metrics.json's free-robot
+    part, metrics.csv and REPORT.md are rewritten, the other parts' results kept."""
+    import grounding_jax as gj
+    from grounding_jax import trained
+    from grounding_jax._io import atomic_write_text, library_versions
+    from grounding_jax.report import metrics_csv, report
+
+    metrics, modules_dir = out / "metrics.json", out / "modules"
+    if not metrics.is_file() or not modules_dir.is_dir():
+        print(f"--only free-robot: needs a whole run in {out} (metrics.json and modules/); "
+              f"run train.py --profile {args.profile} first", file=sys.stderr)
+        return 2
+    data = json.loads(metrics.read_text())
+    if (data["profile"], data["seed"], data["backend"]) != (args.profile, args.seed,
+                                                            args.backend):
+        print(f"--only free-robot: {metrics} is of profile {data['profile']!r}, seed "
+              f"{data['seed']}, backend {data['backend']!r}; asked for {args.profile!r}, "
+              f"{args.seed}, {args.backend!r}", file=sys.stderr)
+        return 2
+    if data["settings"] != args.settings:
+        changed = sorted(k for k in args.settings if data["settings"].get(k) != args.settings[k])
+        print(f"--only free-robot: settings differ from the run in {out}: {changed}; the "
+              f"parts kept would not match", file=sys.stderr)
+        return 2
+    robot = gj.load(modules_dir)
+    if robot.free is None:
+        print(f"--only free-robot: {modules_dir} holds no continuous TL", file=sys.stderr)
+        return 2
+    t = time.perf_counter()
+    free, modules = beyond_robot(k_free, out / "beyond", args.settings, args.backend,
+                                 robot.free.xy_params, robot.free.xy_config)
+    trained.save(modules_dir, robot.tl.params, robot.tl.hyper, robot.al.agent,
+                 robot.al.config, robot.an.net, robot.an.config, robot.env_config,
+                 extra=robot.config.get("extra"), free_modules=modules)
+    strip = camera_strip(out / "beyond", k_strip)
+    data["beyond"]["free"], data["beyond"]["strip"] = free, strip
+    data["wall_s"]["free_robot_rerun"] = time.perf_counter() - t
+    data["libraries"] = library_versions()
+    data.setdefault("reruns", []).append("free-robot")
+    atomic_write_text(metrics, json.dumps(data, indent=2) + "\n")
+    atomic_write_text(out / "metrics.csv", metrics_csv(data))
+    atomic_write_text(out / "REPORT.md", report(data))
+    print(f"rewrote the free robot's part of {out}: metrics.json, metrics.csv, REPORT.md, "
+          f"modules/ ({data['wall_s']['free_robot_rerun']:.1f} s)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     import jax
@@ -356,10 +415,12 @@ def main(argv: list[str] | None = None) -> int:
         atomic_write_text(out / "REPORT.md", report(data))
         print(f"rewrote {out / 'REPORT.md'} from {out / 'metrics.json'}")
         return 0
-    out.mkdir(parents=True, exist_ok=True)
     # the one split (split is prefix-stable: a part added at the end leaves the others' keys)
     k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip = jax.random.split(
         jax.random.key(args.seed), 8)
+    if args.only == "free-robot":
+        return rerun_free_robot(out, args, k_free, k_strip)
+    out.mkdir(parents=True, exist_ok=True)
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()

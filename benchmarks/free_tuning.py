@@ -8,10 +8,19 @@ pushing pose (minus the L1 distance to ``placement.push_pose``, as touch reaches
 touching pose) instead of the shipped reward (minus the palm's distance to the target's
 centre, the paper's), to compare the two on the same agents.
 
+``--no-hand`` hides from the actor where its palm is relative to the target (the ``"free"``
+task set; shipped: ``"free_hand"``, ``TaskSet.hand_obs``); ``--hand`` shows it.
+``--heads 0,1,1`` lets touch and push share a network (shipped: ``0,1,2``, one per
+action); ``--checkpoints 1000,1500`` also judges the agents at those episodes (the learning
+curve of one run).
+
 Usage:  python benchmarks/free_tuning.py [--agents 8] [--phase1 1000] [--phase2 1000]
         [--placements 12] [--key 11] [--eval-key 999] [--push-reward pose|centre]
+        [--heads 0,1,2] [--checkpoints 1000] [--set FIELD=VALUE] [--hand | --no-hand]
+        [--tag NAME]
 Prints the median agent's success per action (min-max over agents), by slot, and the share of
-episodes that moved a wrong object; writes results/benchmarks/free_tuning_<push>.json.
+episodes that moved a wrong object, at each checkpoint and at the end; writes
+results/benchmarks/free_tuning_<tag>.json (tag: the push reward unless given).
 """
 
 from __future__ import annotations
@@ -47,6 +56,23 @@ POSE = tasks.register(dataclasses.replace(
                                                    .success))))
 
 
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers, got {text!r}") from None
+
+
+def _report(table: dict, wrong: dict, episode: int) -> None:
+    for a in tasks.FREE.action_names:
+        lo, *_, hi = table["spread"][a]
+        slots = " / ".join(f"{table['by_task'][f'{a} {p}']:.0%}" for p in tasks.POSITIONS)
+        print(f"episode {episode} {a}: median agent {table['by_action'][a]:.0%} "
+              f"({lo:.0%}-{hi:.0%}); by slot (pooled, left / middle / right) {slots}; wrong "
+              f"object moved in {wrong[a]:.0%} of the episodes", flush=True)
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--agents", type=int, default=8)
@@ -56,42 +82,92 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--key", type=int, default=11, help="the agents' tuning key")
     ap.add_argument("--eval-key", type=int, default=999, help="held-out placements' key")
     ap.add_argument("--push-reward", choices=("centre", "pose"), default="centre")
+    ap.add_argument("--heads", type=_ints, default=beyond.FREE_LEARNER.heads,
+                    help="which actions share a network (point,touch,push)")
+    ap.add_argument("--checkpoints", type=_ints, default=(),
+                    help="episodes at which the agents are also judged")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a learner / env / trainer field changed from beyond.FREE_TUNED "
+                    "(e.g. push_action_scale=0.333); repeatable")
+    ap.add_argument("--hand", action="store_true",
+                    help="the actor also sees the palm's offset to the target (hand_obs; "
+                    "the shipped family's)")
+    ap.add_argument("--no-hand", action="store_true",
+                    help="the actor does not see its palm (the 'free' task set)")
+    ap.add_argument("--tag", default=None, help="the result file's name (default: the push "
+                    "reward)")
     args = ap.parse_args(argv)
     for name in ("agents", "phase1", "placements"):
         if getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')}: must be >= 1, got {getattr(args, name)}")
+    changed = {}
+    for item in args.set:
+        name, eq, value = item.partition("=")
+        try:
+            changed[name.strip()] = float(value)
+        except ValueError:
+            ap.error(f"--set: expected FIELD=NUMBER, got {item!r}")
+        if not eq:
+            ap.error(f"--set: expected FIELD=NUMBER, got {item!r}")
+    try:
+        hp = al.validate(al.hyper(**{**beyond.FREE_TUNED, **changed}))
+    except ValueError as e:
+        ap.error(f"--set: {e}")
     gj.enable_compilation_cache()
     cfg = beyond.config(args.phase1, args.phase2)
+    if args.hand and args.no_hand:
+        ap.error("--hand, --no-hand: choose one")
+    hand = tasks.get(cfg.learner.task_set).hand_obs if not (args.hand or args.no_hand) \
+        else args.hand
+    task_set = tasks.FREE_HAND.name if hand else tasks.FREE.name
     if args.push_reward == "pose":
-        cfg = dataclasses.replace(
-            cfg, env=dataclasses.replace(cfg.env, task_set=POSE.name),
-            learner=dataclasses.replace(cfg.learner, task_set=POSE.name))
+        task_set = POSE.name if not hand else tasks.register(dataclasses.replace(
+            POSE, name=f"{POSE.name}_hand", hand_obs=True)).name
+    try:
+        learner = dataclasses.replace(cfg.learner, task_set=task_set, heads=args.heads)
+    except ValueError as e:
+        ap.error(f"--heads: {e}")
+    cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task_set=task_set),
+                              learner=learner)
+    bad = [c for c in args.checkpoints if not 0 < c < cfg.episodes]
+    if bad:
+        ap.error(f"--checkpoints: must lie in 1..{cfg.episodes - 1}, got {bad}")
     env = Env(cfg.env)
-    hp = beyond.hyper()
-    t = time.perf_counter()
-    agents, _ = al.train_in_chunks(cfg, jax.random.split(jax.random.key(args.key), args.agents),
-                                   hp, [cfg.episodes])
-    train_s = time.perf_counter() - t
     judge = beyond.make_success(env, jax.random.key(args.eval_key), args.placements)
-    out = jax.device_get(judge(agents, jax.random.key(0), hp.env))
-    table = alx.success_table(out)
-    act = np.asarray(out["action"])
-    wrong = {a: float(np.asarray(out["wrong_moved"])[..., act == i].mean())
-             for i, a in enumerate(tasks.FREE.action_names)}
-    res = {**vars(args), "train_s": train_s, "by_action": table["by_action"],
-           "spread": table["spread"], "by_task": table["by_task"], "wrong_moved": wrong,
+    curve: dict[str, dict] = {}
+
+    def measure(episode: int, agents, _metrics) -> None:
+        out = jax.device_get(judge(agents, jax.random.key(0), hp.env))
+        table = alx.success_table(out)
+        act = np.asarray(out["action"])
+        wrong = {a: float(np.asarray(out["wrong_moved"])[..., act == i].mean())
+                 for i, a in enumerate(tasks.FREE.action_names)}
+        touch = act == tasks.FREE.action_names.index("touch")
+        late = np.asarray(out["touched_late"])[..., touch]
+        moved = np.asarray(out["target_moved"])[..., touch] >= tasks.TOUCH_MOVED
+        fails = {"never_touched_late": float((late == 0).mean()),
+                 "target_moved_3cm": float(moved.mean())}
+        curve[str(episode)] = {"by_action": table["by_action"], "spread": table["spread"],
+                               "by_task": table["by_task"], "wrong_moved": wrong,
+                               "touch_failures": fails}
+        _report(table, wrong, episode)
+        print(f"episode {episode} touch episodes (pooled): never touched in the second half "
+              f"{fails['never_touched_late']:.0%}, target moved >= 3 cm "
+              f"{fails['target_moved_3cm']:.0%}", flush=True)
+
+    t = time.perf_counter()
+    al.train_in_chunks(cfg, jax.random.split(jax.random.key(args.key), args.agents), hp,
+                       sorted({*args.checkpoints, cfg.episodes}), measure)
+    train_s = time.perf_counter() - t
+    final = curve[str(cfg.episodes)]
+    tag = args.tag or args.push_reward
+    res = {**vars(args), "changed": changed, "heads": list(args.heads),
+           "checkpoints": list(args.checkpoints), "train_s": train_s, **final, "curve": curve,
            "libraries": library_versions()}
-    for a in tasks.FREE.action_names:
-        lo, *_, hi = table["spread"][a]
-        slots = " / ".join(f"{table['by_task'][f'{a} {p}']:.0%}" for p in tasks.POSITIONS)
-        print(f"{a}: median agent {table['by_action'][a]:.0%} ({lo:.0%}-{hi:.0%}); by slot "
-              f"(pooled, left / middle / right) {slots}; wrong object moved in "
-              f"{wrong[a]:.0%} of the episodes", flush=True)
-    print(f"training {train_s:.0f} s")
+    print(f"training and judging {train_s:.0f} s")
     out_dir = pathlib.Path("results/benchmarks")
     out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_dir / f"free_tuning_{args.push_reward}.json",
-                      json.dumps(res, indent=2) + "\n")
+    atomic_write_text(out_dir / f"free_tuning_{tag}.json", json.dumps(res, indent=2) + "\n")
     return res
 
 

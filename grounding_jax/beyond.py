@@ -2,21 +2,20 @@
 that moves.
 
 The paper's family (three fixed slots, the actor told the target's slot) stays as it is. This
-one uses the ``"free"`` task set: the same actions and success rules, but every training
+one uses the ``"free_hand"`` task set: the same actions and success rules, but every training
 episode places the objects anywhere on the reachable table (:func:`placement.sample`) and the
 actor is told the target's coordinates (as a population code, :func:`placement.population`;
 from the simulator while it learns, from the continuous TL :mod:`grounding_jax.tl_xy` when the
-robot performs). Point's reward and success use the pointing map (IK poses on a 1 cm grid,
-smoothed, interpolated inside ``jit``; :func:`placement.pointing_pose`), and touch's reward the
-touching map in the same way (the palm pressed on the target's top;
-:func:`placement.touch_pose`).
+robot performs) and sees where its palm is relative to them (``TaskSet.hand_obs``). Point's
+reward and success use the pointing map (IK poses on a 1 cm grid, smoothed, interpolated
+inside ``jit``; :func:`placement.pointing_pose`), and touch's reward the touching map in the
+same way (the palm pressed on the target's top; :func:`placement.touch_pose`).
 
 The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
-actor's learning rate 0.1), its networks :data:`FREE_LEARNER` (point in an actor-critic of its
-own, touch and push sharing a second); the target's coordinates reach the actor as a
-population code, and the rewards are the free family's (see ``tasks.FREE``: every action is
-penalised for touching a non-target object, touch reaches for its touching pose, without
-the paper's penalty for touching the target).
+actor's learning rate 0.1), its networks :data:`FREE_LEARNER` (an actor-critic per action);
+the target's coordinates reach the actor as a population code, and the rewards are the free
+family's (see ``tasks.FREE``: every action is penalised for touching a non-target object,
+touch reaches for its touching pose, without the paper's penalty for touching the target).
 
 - :func:`train` / :func:`success`: agents trained on random placements, judged on held-out
   random placements (fresh draws, random layouts) with the action-learning criteria.
@@ -54,14 +53,16 @@ MOVING_STEPS = 200
 
 
 def env_config(backend: str = "mujoco") -> EnvConfig:
-    """The free family's env (``task_set="free"``)."""
-    return EnvConfig(backend=backend, task_set=tasks.FREE.name)
+    """The free family's env (``task_set="free_hand"``: the actor sees the target's
+    coordinates and where its palm is relative to them)."""
+    return EnvConfig(backend=backend, task_set=tasks.FREE_HAND.name)
 
 
-#: The free family's networks: the paper's sizes, but point learns in an actor-critic of its
-#: own and touch and push share a second one (one network for all three left some agents that
-#: never learned to point; touch learned alone knocked neighbours: README "Beyond the paper").
-FREE_LEARNER = cacla.CaclaConfig(task_set=tasks.FREE.name, heads=(0, 1, 1))
+#: The free family's networks: the paper's sizes, one actor-critic per action (one network
+#: for all three left some agents that never learned to point; without the hand units touch
+#: needed push's network beside it, with them it learns best alone: README "Beyond the
+#: paper").
+FREE_LEARNER = cacla.CaclaConfig(task_set=tasks.FREE_HAND.name, heads=(0, 1, 2))
 
 
 def config(phase1: int, phase2: int, backend: str = "mujoco") -> al.ALConfig:
@@ -139,7 +140,7 @@ def train(key: jax.Array, seeds: int, phase1: int, phase2: int, eval_placements:
            "train_s": time.perf_counter() - t,
            "rl_steps": int(np.asarray(metrics["steps"]).sum()), "median_agent": median_agent,
            "hyper": FREE_TUNED, "heads": list(FREE_LEARNER.heads), "touch_reward": "pose",
-           "push_reward": "centre"}
+           "push_reward": "centre", "hand_obs": tasks.get(FREE_LEARNER.task_set).hand_obs}
     return res, agents
 
 

@@ -356,14 +356,20 @@ class Env:
     def _objects(self, qpos: jax.Array) -> jax.Array:
         return qpos[self._idx.object_qpos[:, :3]]  # [shape, 3]
 
-    def _target_units(self, task: Task, object_start: jax.Array) -> jax.Array:
+    def _target_units(self, task: Task, object_start: jax.Array,
+                      palm: jax.Array) -> jax.Array:
         """The observation's target part: the position one-hot, or the target's
-        coordinates (the task's ``target_xy``, else where the target is meant to be)."""
+        coordinates (the task's ``target_xy``, else where the target is meant to be), then,
+        with ``hand_obs``, the palm's offset to that point (``obs_target`` + ``obs_hand``)."""
         if self.tasks.target_obs == "position":
             return jax.nn.one_hot(task.position, tasks.N_POSITIONS)
-        target_shape = self._slot_shape[task.layout, task.position]
-        xy = object_start[target_shape, :2] if task.target_xy is None else task.target_xy
-        return free.target_units(xy, self.tasks.target_obs)
+        target = object_start[self._slot_shape[task.layout, task.position]]
+        xy = target[:2] if task.target_xy is None else task.target_xy
+        units = free.target_units(xy, self.tasks.target_obs)
+        if not self.tasks.hand_obs:
+            return units
+        told = jnp.concatenate([xy, target[2:]])
+        return jnp.concatenate([units, jnp.tanh((palm - told) / tasks.HAND_SCALE)])
 
     def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams):
         """Observation, reward and per-step metrics of a physics state (``object_start``:
@@ -371,10 +377,11 @@ class Env:
         point on its path)."""
         joints = scale_joints(qpos[self._idx.arm_qpos])
         contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
+        palm = sensordata[self._idx.sensor_palm_pos]
         obs = jnp.concatenate([
             joints, jnp.any(contacts).astype(jnp.float32)[None],
             jax.nn.one_hot(task.action, self.tasks.n_actions),
-            self._target_units(task, object_start)
+            self._target_units(task, object_start, palm)
         ])
         target_shape = self._slot_shape[task.layout, task.position]
         target_xy = object_start[target_shape, :2]
@@ -388,7 +395,6 @@ class Env:
         else:  # the touch and push pose maps (the free family's rewards)
             touch_l1 = jnp.sum(jnp.abs(joints - scale_joints(free.touch_pose(target_xy))))
             push_l1 = jnp.sum(jnp.abs(joints - scale_joints(free.push_pose(target_xy))))
-        palm = sensordata[self._idx.sensor_palm_pos]
         is_target = jnp.arange(3) == target_shape
         moved = jnp.linalg.norm(self._objects(qpos) - object_start, axis=1)  # [shape]
         now = self._objects(qpos)[target_shape]  # where the target is
@@ -560,7 +566,8 @@ class Env:
         _check_task(task, self.tasks.n_actions)
         ts = self.tasks
         obs = state.obs.at[ts.obs_action].set(jax.nn.one_hot(task.action, ts.n_actions))
-        obs = obs.at[ts.obs_target].set(self._target_units(task, state.object_start))
+        units = self._target_units(task, state.object_start, state.info["palm_pos"])
+        obs = obs.at[ts.obs_target.start:ts.obs_hand.stop].set(units)
         return state.replace(task=task, obs=obs)
 
 

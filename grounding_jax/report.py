@@ -237,6 +237,11 @@ def _networks(heads: list[int] | None) -> str:
             + " -- an actor-critic of the paper's sizes each.")
 
 
+#: What the report says of the hand units (``TaskSet.hand_obs``) where a run had them.
+_HAND_TEXT = (", and sees where its palm is relative to those coordinates (three units, "
+              "tanh of the offset per axis over 10 cm: the hand units)")
+
+
 def _free_touch_text(free: dict) -> str:
     """What the free family's touch reward was in the run that wrote ``free``."""
     h = free["hyper"]
@@ -263,7 +268,8 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
         f"episode, random layout), phase 1 for {free['phase1']} episodes then plain CACLA. "
         "The actor is told where the target is by the simulator, as a population code of its "
         "coordinates (Gaussian bumps on a 3 x 7 grid over the reachable region) instead of "
-        f"its slot. {_networks(free.get('heads'))} Settings: {hyper} (the paper family's "
+        f"its slot{_HAND_TEXT if free.get('hand_obs') else ''}. "
+        f"{_networks(free.get('heads'))} Settings: {hyper} (the paper family's "
         "but for gamma, the actor's rate and, where listed, the action's scale; README "
         "\"Beyond the paper\" has the "
         "measurements behind each change). The "
@@ -496,6 +502,10 @@ def report(result: dict) -> str:
                      f"{r['final_point_l1']:.3f} | {r['target_moved_m'] * 100:.1f} | "
                      f"{r['others_moved_m'] * 100:.2f} |")
     lines += ["", "Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()) + "."]
+    if result.get("reruns"):  # parts re-run alone (train.py --only) after the whole run
+        lines += ["", "Re-run alone after the whole run, with the keys it gives them (train.py "
+                  "--only): " + ", ".join(result["reruns"]) + "; the other parts' results "
+                  "are the whole run's."]
     if "libraries" in result:  # runs before this was recorded do not say
         lines += ["", "Run with " + ", ".join(f"{k} {v}" for k, v in result["libraries"].items())
                   + " (bit-for-bit reproduction from the same seed is only expected under the "

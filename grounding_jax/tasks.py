@@ -48,6 +48,9 @@ TARGET_WORDS = (*SHAPES, *COLOURS)
 TARGET_OBS = ("position", "xy", "population")
 #: The population code's grid: centres along x (depth) and y (across the table).
 POPULATION_GRID = (3, 7)
+#: The hand units' length scale (metres): ``tanh(offset / HAND_SCALE)`` per axis, fine near the
+#: target (1 cm moves a unit by ~0.1) and saturating past ~20 cm.
+HAND_SCALE = 0.1
 N_JOINTS = 4
 N_POSITIONS = len(POSITIONS)
 N_WORDS = len(TARGET_WORDS)
@@ -121,11 +124,17 @@ class TaskSet:
             target's table coordinates, scaled to [-1, 1] over the reachable region) or
             ``"population"`` (those coordinates as Gaussian bumps on ``POPULATION_GRID``; see
             :func:`placement.population`).
+        hand_obs: three more units after the target's: where the palm is relative to the
+            target, ``tanh((palm - target) / HAND_SCALE)`` per axis (x, y, z), the target's
+            (x, y) being what the actor is told (the TL's estimate when the robot performs)
+            and its height the objects' centre. Needs table coordinates (``target_obs``
+            ``"xy"`` or ``"population"``).
     """
 
     name: str
     actions: tuple[Action, ...]
     target_obs: str = "position"
+    hand_obs: bool = False
 
     def __post_init__(self) -> None:
         names = self.action_names
@@ -134,6 +143,9 @@ class TaskSet:
         if self.target_obs not in TARGET_OBS:
             raise ValueError(f"target_obs: unknown value {self.target_obs!r}; accepted values: "
                              f"{TARGET_OBS}")
+        if self.hand_obs and self.target_obs == "position":
+            raise ValueError("hand_obs: needs the target's table coordinates; accepted "
+                             "target_obs with it: 'xy', 'population'")
 
     @property
     def action_names(self) -> tuple[str, ...]:
@@ -161,8 +173,15 @@ class TaskSet:
         return self.obs_target
 
     @property
+    def obs_hand(self) -> slice:
+        """Where the palm's offset to the target lies in the observation (empty without
+        ``hand_obs``)."""
+        start = self.obs_target.stop
+        return slice(start, start + (3 if self.hand_obs else 0))
+
+    @property
     def obs_size(self) -> int:
-        return self.obs_target.stop
+        return self.obs_hand.stop
 
     @property
     def action_size(self) -> int:
@@ -224,13 +243,20 @@ FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
                         Action("touch", _free_touch_reward, _touch_success),
                         Action("push", _free_push_reward, _push_success)),
                target_obs="population")
-TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER, FREE.name: FREE}
+#: The free family with the hand units (``hand_obs``): the actor also sees where its palm is
+#: relative to the target, as a robot watching its hand and the object would (the paper's
+#: "online visual feedback"). Same actions, rewards and success rules as :data:`FREE`.
+FREE_HAND = dataclasses.replace(FREE, name="free_hand", hand_obs=True)
+TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER, FREE.name: FREE, FREE_HAND.name: FREE_HAND}
+#: The task sets that cannot be replaced (saved agents name them).
+BUILT_IN = (PAPER, FREE, FREE_HAND)
 
 
 def register(task_set: TaskSet) -> TaskSet:
     """Make ``task_set`` available by its name to the configs (replacing one of that name,
-    except the built-in "paper" and "free", which stay as they are). Returns it."""
-    for fixed in (PAPER, FREE):
+    except the built-in ones -- "paper", "free", "free_hand" -- which stay as they are).
+    Returns it."""
+    for fixed in BUILT_IN:
         if task_set.name == fixed.name and task_set is not fixed:
             raise ValueError(f"task_set: the name {fixed.name!r} is built in and cannot be "
                              f"replaced; choose another name")

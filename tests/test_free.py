@@ -114,6 +114,33 @@ def test_the_free_actor_is_told_the_targets_coordinates(env):
     np.testing.assert_allclose(u.reward, -u.metrics["palm_target_dist"], rtol=1e-6)
 
 
+def test_the_hand_units_say_where_the_palm_is_relative_to_the_told_target():
+    hand = tasks.register(tasks.TaskSet("free_hand_test", tasks.FREE.actions,
+                                        target_obs="population", hand_obs=True))
+    n = tasks.POPULATION_GRID[0] * tasks.POPULATION_GRID[1]
+    assert hand.obs_hand == slice(8 + n, 11 + n) and hand.obs_size == tasks.FREE.obs_size + 3
+    assert tasks.FREE.obs_hand == slice(8 + n, 8 + n)  # the shipped family has none
+    env = gj.make_env(task_set=hand.name)
+    placed = free.sample(jax.random.key(2))
+    told = gj.make_task("touch", "right", 5, hand.name, placement=placed, target_xy=(-0.22, 0.2))
+    s = env.reset(jax.random.key(0), told)
+    target_z = scene.TABLE_Z + scene.OBJECT_HALF
+    want = lambda st, xy: np.tanh(  # noqa: E731
+        (np.asarray(st.info["palm_pos"]) - np.array([*xy, target_z])) / tasks.HAND_SCALE)
+    np.testing.assert_allclose(s.obs[hand.obs_hand], want(s, (-0.22, 0.2)), atol=1e-5)
+    np.testing.assert_allclose(s.obs[hand.obs_target], free.target_units(
+        jnp.array([-0.22, 0.2]), "population"), atol=1e-6)
+    s = jax.jit(env.step)(s, jnp.array([0.5, -0.5, 0.5, 0.5]))  # the palm moves: so do they
+    np.testing.assert_allclose(s.obs[hand.obs_hand], want(s, (-0.22, 0.2)), atol=1e-5)
+    switched = env.set_task(s, told.replace(target_xy=jnp.array([-0.25, 0.1])))
+    np.testing.assert_allclose(switched.obs[hand.obs_hand], want(s, (-0.25, 0.1)), atol=1e-5)
+    # a learner sized by the task set takes the longer observation
+    agent = cacla.init(jax.random.key(0), cacla.CaclaConfig(task_set=hand.name))
+    assert agent.actor.w1.shape[0] == hand.obs_size
+    with pytest.raises(ValueError, match="hand_obs: needs the target's table coordinates"):
+        tasks.TaskSet("bad_hand", tasks.PAPER.actions, hand_obs=True)
+
+
 def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):
     placed, vel = free.moving(jax.random.key(4), 0.03)
     assert np.all(np.asarray(placed[1:, 0]) == -0.24) and float(placed[1, 1]) >= 0.40
@@ -192,9 +219,16 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
     free.check(placed)
     np.testing.assert_array_equal(out["true_xy"], placed[scene.POSITIONS.index(
         out["true_position"]), :2])
-    # what the actor heard is the TL's estimate, not the truth
-    np.testing.assert_allclose(out["trajectory"].obs[0, 8:],
+    # what the actor heard is the TL's estimate, not the truth: its coordinates and, in the
+    # hand units, where the palm is relative to them
+    ts = tasks.get(robot.free.env_config.task_set)
+    assert ts is tasks.FREE_HAND
+    first = out["trajectory"]
+    np.testing.assert_allclose(first.obs[0, ts.obs_target],
                                free.target_units(out["xy"], "population"), atol=1e-5)
+    told = np.array([*out["xy"], scene.TABLE_Z + scene.OBJECT_HALF])
+    np.testing.assert_allclose(first.obs[0, ts.obs_hand], np.tanh(
+        (np.asarray(first.info["palm_pos"][0]) - told) / tasks.HAND_SCALE), atol=1e-5)
     # it acts with the env parameters it was trained with (the free family's action scale)
     assert float(robot.free.params.action_scale) == beyond.FREE_TUNED["action_scale"] != 1 / 3
     same = robot.perform("push", "red", 4, steps=3, placement="random", key=jax.random.key(5),
@@ -216,7 +250,8 @@ def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp
                    "critic_hidden": 4, "episode_length": 5, "placement": "random"},
         "grid": {"gamma": [0.0, 0.3]}})
     cfg = sweep._module_config(spec, spec.groups()[0][0])
-    assert cfg.placement == "random" and cfg.env.task_set == cfg.learner.task_set == "free"
+    assert cfg.placement == "random"
+    assert cfg.env.task_set == cfg.learner.task_set == beyond.FREE_LEARNER.task_set
     assert cfg.learner.heads == beyond.FREE_LEARNER.heads  # the free family's networks
     sweep.run(spec, tmp_path, show_progress=False)
     with np.load(tmp_path / "free_tiny" / "metrics.npz") as f:
@@ -224,7 +259,8 @@ def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp
     assert rates.shape == (4, 1) and np.all((rates >= 0) & (rates <= 1))
     (_, agents, _), _ = sweep.trained_agents(spec, tmp_path)
     # the first point's 2 agents, each with a network slot per action
-    assert agents.actor.w1.shape == (2, tasks.FREE.n_actions, tasks.FREE.obs_size, 4)
+    ts = tasks.get(beyond.FREE_LEARNER.task_set)
+    assert agents.actor.w1.shape == (2, ts.n_actions, ts.obs_size, 4)
     with pytest.raises(sweep.SweepError, match="placement"):
         sweep.parse_spec({"module": "al", "params": {"placement": "anywhere"},
                           "grid": {"gamma": [0.0]}})

@@ -150,6 +150,32 @@ def test_readme_beyond_example_runs_on_the_committed_modules(monkeypatch):
     assert scope["robot"].free is not None and scope["sliding"].velocity is not None
 
 
+def test_only_free_robot_reruns_that_part_with_the_whole_runs_keys(quick, capsys):
+    import grounding_jax as gj
+
+    before = json.loads((quick / "metrics.json").read_text())
+    paper_agent = gj.load(quick / "modules").al.agent
+    assert train.main(["--out", str(quick), "--only", "free-robot"]) == 0
+    after = json.loads((quick / "metrics.json").read_text())
+    # the same keys: the free robot's results come out as the whole run made them
+    untimed = lambda free: {k: v for k, v in free.items() if k != "train_s"}  # noqa: E731
+    assert untimed(after["beyond"]["free"]) == untimed(before["beyond"]["free"])
+    assert after["beyond"]["strip"] == before["beyond"]["strip"]
+    assert after["reruns"] == ["free-robot"] and "free_robot_rerun" in after["wall_s"]
+    assert {k: v for k, v in after.items() if k not in ("beyond", "wall_s", "reruns")} == \
+        {k: v for k, v in before.items() if k not in ("beyond", "wall_s")}
+    robot = gj.load(quick / "modules")  # saved again: the paper's agent unchanged
+    np.testing.assert_array_equal(robot.al.agent.actor.w1, paper_agent.actor.w1)
+    assert robot.free is not None and "free-robot" in (quick / "REPORT.md").read_text()
+    # refused before anything runs: another profile's settings, or no run there
+    capsys.readouterr()
+    assert train.main(["--out", str(quick), "--only", "free-robot",
+                       "--set", "free_seeds=3"]) == 2
+    assert "free_seeds" in capsys.readouterr().err
+    assert train.main(["--out", str(quick / "nothing"), "--only", "free-robot"]) == 2
+    assert "needs a whole run" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("argv, field", [
     (["--profile", "huge"], "--profile"),
     (["--backend", "ode"], "--backend"),
@@ -160,6 +186,7 @@ def test_readme_beyond_example_runs_on_the_committed_modules(monkeypatch):
     (["--set", "al_seeds=0"], "al_seeds"),
     (["--set", "free_an_scenes=2"], "free_an_scenes"),
     (["--set", "free_phase1=0", "--set", "free_phase2=0"], "free_phase"),
+    (["--only", "tl"], "--only"),
 ])
 def test_train_rejects_bad_arguments(argv, field, capsys):
     with pytest.raises(SystemExit):
