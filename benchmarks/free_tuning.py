@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
                     help="episodes at which the agents are also judged")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="a learner / env / trainer field changed from beyond.FREE_TUNED "
-                    "(e.g. push_action_scale=0.333); repeatable")
+                    "(e.g. touch_bonus=0.1); repeatable")
     ap.add_argument("--hand", action="store_true",
                     help="the actor also sees the palm's offset to the target (hand_obs; "
                     "the shipped family's)")

@@ -232,7 +232,7 @@ class _Parts:
         nxt = env.step(state, a, hp.env)
         target = jnp.where(hp.executed_target > 0.5,
                            executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
-                                           env.action_scale(state.task, hp.env)), a)
+                                           hp.env.action_scale), a)
         tr = learners.Transition(obs=state.obs, action=target, reward=nxt.reward,
                                  next_obs=nxt.obs, done=nxt.done, prev_reward=state.reward)
         new, info = lrn.update(agent, tr, lhp, self.config.learner)

@@ -89,8 +89,6 @@ class EnvParams:
 
     Attributes:
         action_scale: factor applied to the action before it moves the joints (paper: 1/3).
-        push_action_scale: that factor for push's episodes; 0 (default): ``action_scale``
-            (the free family pushes with larger steps than it points and touches).
         touch_other_penalty: added to the touch reward while touching a non-target object.
         touch_target_penalty: added to the touch reward while touching the target.
         touch_moved_penalty: the free family's touch reward loses this much per metre the
@@ -105,7 +103,6 @@ class EnvParams:
     """
 
     action_scale: Any = 1.0 / 3.0
-    push_action_scale: Any = 0.0
     touch_other_penalty: Any = -0.5
     touch_target_penalty: Any = -0.3
     touch_moved_penalty: Any = 10.0
@@ -122,9 +119,8 @@ class EnvParams:
 
 #: What each field of :class:`EnvParams` accepts (``validate`` and the sweep runner read it).
 PARAM_RULES: dict[str, Rule] = {
-    "action_scale": POSITIVE, "push_action_scale": NON_NEGATIVE, "touch_other_penalty": FINITE,
-    "touch_target_penalty": FINITE, "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE,
-    "wrong_move_threshold": POSITIVE,
+    "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
+    "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE, "wrong_move_threshold": POSITIVE,
     "wrong_move_extra_steps": integer_at_least(0), "start_noise": NON_NEGATIVE,
 }
 
@@ -474,15 +470,6 @@ class Env:
             info=self._info(sensordata, q_arm),
         )
 
-    def action_scale(self, task: Task, params: EnvParams = DEFAULT_PARAMS) -> jax.Array:
-        """The factor ``step`` applies to ``task``'s actions: ``params.push_action_scale`` in
-        push's episodes where it is > 0, else ``params.action_scale``."""
-        names = self.tasks.action_names
-        if "push" not in names:
-            return jnp.asarray(params.action_scale)
-        push = (task.action == names.index("push")) & (params.push_action_scale > 0)
-        return jnp.where(push, params.push_action_scale, params.action_scale)
-
     def step(self, state: State, action: jax.Array, params: EnvParams = DEFAULT_PARAMS) -> State:
         """Advance one RL step.
 
@@ -502,8 +489,7 @@ class Env:
         action = action.astype(jnp.float32)
         nan = jnp.isnan(action)
         action = jnp.where(nan, 0.0, action)
-        target = (scale_joints(state.qpos[self._idx.arm_qpos])
-                  + self.action_scale(state.task, params) * action)
+        target = scale_joints(state.qpos[self._idx.arm_qpos]) + params.action_scale * action
         ctrl = jnp.clip(unscale_joints(target), self._range[:, 0], self._range[:, 1])
         qpos, qvel, object_start = self._slide(state)
         qpos, qvel, sensordata = self._physics_step(qpos, qvel, ctrl, ~state.done)

@@ -111,7 +111,7 @@ _AL_SWEPT = {
     "learner": tuple(n for n in _LEARNER.hyper_rules
                      if n not in ("phase1", "actor_units", "critic_units")),
     "al": tuple(al.HYPER_RULES),  # ALHyper's own
-    "env": ("action_scale", "push_action_scale", "touch_other_penalty", "touch_target_penalty",
+    "env": ("action_scale", "touch_other_penalty", "touch_target_penalty",
             "touch_moved_penalty", "touch_bonus", "start_noise"),  # EnvParams
 }
 

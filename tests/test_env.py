@@ -227,22 +227,6 @@ def test_action_moves_the_joints_by_a_third(env_c):
     assert np.all(np.abs(moved - np.asarray(a) / 3) < 0.25 * np.abs(np.asarray(a) / 3))
 
 
-def test_push_may_move_with_a_scale_of_its_own(env_c):
-    a = jnp.array([0.3, -0.3, 0.3, 0.3])
-    params = env_mod.EnvParams(action_scale=0.2, push_action_scale=0.5)
-    for action, scale in (("push", 0.5), ("touch", 0.2)):
-        st = env_c.reset(jax.random.key(0), gj.make_task(action, "left"))
-        assert float(env_c.action_scale(st.task, params)) == pytest.approx(scale)
-        nxt = env_c.step(st, a, params)
-        np.testing.assert_allclose(nxt.info["ctrl"],
-                                   env_mod.unscale_joints(st.obs[:4] + scale * a), atol=1e-5)
-    st = env_c.reset(jax.random.key(0), gj.make_task("push", "left"))  # 0: action_scale's
-    assert float(env_c.action_scale(st.task, env_mod.EnvParams(action_scale=0.2))) == \
-        pytest.approx(0.2)
-    with pytest.raises(ValueError, match="push_action_scale"):
-        env_mod.EnvParams(push_action_scale=-0.1).validate()
-
-
 def test_commands_are_clipped_to_the_model_joint_limits(env_c):
     st = env_c.reset(jax.random.key(0), gj.make_task("point", "left"))
     rng = scene.index().joint_range
