@@ -135,12 +135,13 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
 
     Returns:
         A function whose dict holds arrays ``[agents, starts, tasks]`` (see
-        :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``.
+        :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``. Its optional
+        ``batch`` argument runs other tasks of the same shapes instead (no new compile).
     """
     env = as_env(env, steps)
     evaluate = al.make_eval(env)
-    batch = all_tasks(layouts, actions) if batch is None else batch
-    n_tasks = int(batch.action.shape[0])
+    default = all_tasks(layouts, actions) if batch is None else batch
+    n_tasks = int(default.action.shape[0])
 
     def one(agent, key, task, params):
         _, traj, _ = evaluate(agent, key, task, params)
@@ -150,7 +151,12 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
     over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
 
     @jax.jit
-    def success(agents, key: jax.Array, params: EnvParams = DEFAULT_PARAMS):
+    def success(agents, key: jax.Array, params: EnvParams = DEFAULT_PARAMS,
+                batch: Task | None = None):
+        batch = default if batch is None else batch
+        if int(batch.action.shape[0]) != n_tasks:
+            raise ValueError(f"batch: {batch.action.shape[0]} tasks, this success runs "
+                             f"{n_tasks}")
         # a params leaf with a leading axis is per agent (a sweep's traced env fields)
         axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, params)
         over_agents = jax.vmap(over_starts, in_axes=(0, None, None, axes))

@@ -311,10 +311,12 @@ def train_namer(key: jax.Array, agent, xy_params, xy_config, scenes: int, seeds:
 
 
 # ----------------------------------------------------------------------- the whole robot's eyes
-def eyes_tasks(localize, key: jax.Array, placements: int) -> tuple[Task, np.ndarray]:
+def eyes_tasks(localize, key: jax.Array, placements: int,
+               words: tuple[str, ...] = tasks.COLOURS) -> tuple[Task, np.ndarray]:
     """:func:`al_experiments.free_tasks` with ``target_xy`` from the robot's eyes: each scene
-    rendered by the eye camera at rest, each target named by its colour word, located by
-    ``localize(rgb, layout, word) -> xy`` (e.g. ``TrainedFree.localize``).
+    rendered by the eye camera at rest, each target named by the one of ``words`` that names
+    it (its colour, or with ``tasks.SHAPES`` its shape), located by ``localize(rgb, layout,
+    word) -> xy`` (e.g. ``TrainedFree.localize``).
 
     Returns:
         (the tasks, the TL's error per task in cm).
@@ -331,9 +333,9 @@ def eyes_tasks(localize, key: jax.Array, placements: int) -> tuple[Task, np.ndar
         key_i = hash(placed[i].tobytes())  # one render per scene
         if key_i not in seen:
             seen[key_i] = r.render(int(layouts[i]), placed[i])
-        colour = next(w for w in tasks.COLOURS
-                      if tl_data.label_of(int(layouts[i]), tl_data.word_index(w)) == slots[i])
-        xy[i] = localize(seen[key_i], int(layouts[i]), colour)
+        word = next(w for w in words
+                    if tl_data.label_of(int(layouts[i]), tl_data.word_index(w)) == slots[i])
+        xy[i] = localize(seen[key_i], int(layouts[i]), word)
     err = 100 * np.linalg.norm(xy - placed[np.arange(len(slots)), slots, :2], axis=1)
     return batch.replace(target_xy=jnp.asarray(xy)), err
 

@@ -298,6 +298,15 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
             "(the same agent told by the simulator: "
             + ", ".join(f"{a} {_pct(free['final']['per_agent_by_action'][a][free['median_agent']])}"
                         for a in ("point", "touch", "push")) + ")."]
+    shape = free.get("eyes_shape")
+    if shape:  # the same placements, the target named by its shape (the TL's error tail)
+        lines[-1] += (
+            " Named by its shape instead (TL error median "
+            f"{shape['tl_error_cm_median']:.2f} cm, 95th percentile "
+            f"{shape['tl_error_cm_p95']:.2f} cm): "
+            + ", ".join(f"{a} {_pct(shape['by_action'][a])}" for a in ("point", "touch", "push"))
+            + ". Point's criterion (final L1 < 0.1 to the true pointing pose) leaves about 1 cm "
+            "for the TL's error.")
     mv = free.get("moving")
     if mv:
         lines += [

@@ -96,7 +96,9 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert (tmp_path / "beyond" / "tl_xy.png").stat().st_size > 1000
     free = data["beyond"]["free"]
     assert free["seeds"] == 2 and set(free["success"]) == {"45", "90"}
-    for table in (free["final"], free["eyes"]):
+    assert free["eyes"]["words"] == ["red", "green", "blue"]
+    assert free["eyes_shape"]["words"] == ["box", "cylinder", "sphere"]
+    for table in (free["final"], free["eyes"], free["eyes_shape"]):
         assert set(table["by_action"]) == {"point", "touch", "push"}
         assert all(0.0 <= v <= 1.0 for v in table["by_action"].values())
     assert len(free["moving"]["rows"]) == 2 * 4 * 2  # actions x speeds x robots

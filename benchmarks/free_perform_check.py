@@ -1,0 +1,78 @@
+"""The saved robot as a user meets it: ``grounding_jax.load(...).perform(action, word, layout,
+placement="random", key=...)`` -- render, the TL's coordinates, act, name -- on placements drawn
+from a key that neither training nor train.py's evaluations used (the layouts cycle through all
+36; training draws every layout), judged with the action-learning success rule
+(``al_experiments.episode_success``).
+
+Usage:  python benchmarks/free_perform_check.py [--modules results/paper/modules]
+        [--episodes 36] [--key 500]
+Prints each action's success, how often the namer named action and target, and the TL's
+error; writes results/benchmarks/free_perform_check.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+
+import grounding_jax as gj  # noqa: E402
+from grounding_jax import al_experiments as alx  # noqa: E402
+from grounding_jax import tasks  # noqa: E402
+from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
+
+#: the layouts the episodes cycle through: all 36
+LAYOUTS = tuple(range(35, -1, -1))
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--modules", default="results/paper/modules")
+    ap.add_argument("--episodes", type=int, default=36)
+    ap.add_argument("--key", type=int, default=500, help="the placements' and resets' key")
+    args = ap.parse_args(argv)
+    if args.episodes < 1:
+        ap.error(f"--episodes: must be >= 1, got {args.episodes}")
+    gj.enable_compilation_cache()
+    robot = gj.load(args.modules)
+    if robot.free is None:
+        ap.error(f"--modules: {args.modules} holds no free-family robot")
+    ts = tasks.get(robot.free.env_config.task_set)
+    rows = []
+    for i, k in enumerate(jax.random.split(jax.random.key(args.key), args.episodes)):
+        action = ts.action_names[i % ts.n_actions]
+        word = tasks.TARGET_WORDS[(i // ts.n_actions) % len(tasks.TARGET_WORDS)]
+        layout = LAYOUTS[i % len(LAYOUTS)]
+        out = robot.perform(action, word, layout, placement="random", key=k)
+        task = gj.make_task(action, word, layout, ts.name, placement=out["placement"])
+        judged = jax.device_get(alx.episode_success(out["trajectory"], task, task_set=ts))
+        rows.append({"action": action, "word": word, "layout": layout,
+                     "success": bool(judged["success"]),
+                     "named": list(out["named"]) if out["named"] else None,
+                     "tl_error_cm": float(100 * np.linalg.norm(out["xy"] - out["true_xy"]))})
+    res = {"modules": args.modules, "episodes": args.episodes, "key": args.key,
+           "task_set": ts.name, "rows": rows, "libraries": library_versions()}
+    for a in ts.action_names:
+        mine = [r for r in rows if r["action"] == a]
+        res[f"success_{a}"] = float(np.mean([r["success"] for r in mine]))
+        print(f"{a}: {sum(r['success'] for r in mine)} of {len(mine)} succeeded", flush=True)
+    named = [r["named"] == [r["action"], r["word"]] for r in rows if r["named"]]
+    res["named_right"] = float(np.mean(named)) if named else None
+    err = np.array([r["tl_error_cm"] for r in rows])
+    res["tl_error_cm_median"], res["tl_error_cm_max"] = float(np.median(err)), float(err.max())
+    print(f"named action and target right: {sum(named)} of {len(named)}; TL error median "
+          f"{res['tl_error_cm_median']:.2f} cm, max {res['tl_error_cm_max']:.2f} cm")
+    out_dir = pathlib.Path("results/benchmarks")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out_dir / "free_perform_check.json", json.dumps(res, indent=2) + "\n")
+    return res
+
+
+if __name__ == "__main__":
+    main()
