@@ -68,8 +68,11 @@ AL_SWEEPS = {
     "fig9a_actor_lr": {"quick": [*_QUICK_SWEEP_EPISODES, "actor_lr=0.0001,0.001,0.01"]},
     "fig9b_actor_hidden": {"quick": [*_QUICK_SWEEP_EPISODES, "actor_hidden=10,40"]},
 }
-#: the parts ``--only`` re-runs
-ONLY = ("free-robot",)
+#: the parts ``--only`` re-runs, each with the settings it reads (which may differ from the
+#: whole run's; the other parts' settings may not)
+ONLY = {"free-robot": ("free_seeds", "free_phase1", "free_phase2", "free_placements",
+                       "free_eyes_placements", "moving_scenes", "free_an_scenes",
+                       "free_an_seeds")}
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2"}
 
@@ -111,7 +114,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                          "checkpoints (else they start over)")
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite REPORT.md from the metrics.json already in --out; run nothing")
-    ap.add_argument("--only", choices=ONLY, default=None,
+    ap.add_argument("--only", choices=tuple(ONLY), default=None,
                     help="re-run one part of a run already in --out with the keys a whole run "
                          "gives it, keeping the rest (free-robot: the free family's actor, its "
                          "eyes, the moving target, the namer and the camera strip, on the saved "
@@ -306,14 +309,15 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
                                 modules["env_config"], params=modules["params"])
     # the same placements, the target named by its colour (the TL's easy words), then by its
     # shape (its error tail)
-    judge = None
-    for part, words in (("eyes", tasks.COLOURS), ("eyes_shape", tasks.SHAPES)):
-        batch, err = B.eyes_tasks(looks.localize, k_eyes, st["free_eyes_placements"], words)
-        judge = judge or al_experiments.make_success(Env(modules["env_config"]), batch=batch)
+    words = {"eyes": tasks.COLOURS, "eyes_shape": tasks.SHAPES}
+    eyes = {part: B.eyes_tasks(looks.localize, k_eyes, st["free_eyes_placements"], w)
+            for part, w in words.items()}
+    judge = al_experiments.make_success(Env(modules["env_config"]), batch=eyes["eyes"][0])
+    for part, (batch, err) in eyes.items():
         eyes_out = judge(jax.tree.map(lambda x: x[None], agent), k_eyes_eval, B.hyper().env,
                          batch=batch)
         free[part] = {**B.success(eyes_out), "placements": st["free_eyes_placements"],
-                      "words": list(words), "tl_error_cm_median": float(np.median(err)),
+                      "words": list(words[part]), "tl_error_cm_median": float(np.median(err)),
                       "tl_error_cm_p95": float(np.quantile(err, 0.95))}
     free["moving"] = B.moving(agent, k_move, out, scenes=st["moving_scenes"], backend=backend)
     free["an"], (modules["net"], modules["esn_config"]) = B.train_namer(
@@ -350,7 +354,7 @@ def camera_strip(out: pathlib.Path, key) -> dict:
 
 def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_strip) -> int:
     """``--only free-robot``: :func:`beyond_robot` and :func:`camera_strip` again with the keys
-    a whole run gives them, on the continuous TL saved in ``out/../modules``; the modules are
+    a whole run gives them, on the continuous TL saved in ``out/modules``; the modules are
     saved again (the paper's unchanged, the free family's new) and metrics.json's free-robot
     part, metrics.csv and REPORT.md are rewritten, the other parts' results kept."""
     import grounding_jax as gj
@@ -370,10 +374,12 @@ def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_stri
               f"{data['seed']}, backend {data['backend']!r}; asked for {args.profile!r}, "
               f"{args.seed}, {args.backend!r}", file=sys.stderr)
         return 2
-    if data["settings"] != args.settings:
-        changed = sorted(k for k in args.settings if data["settings"].get(k) != args.settings[k])
-        print(f"--only free-robot: settings differ from the run in {out}: {changed}; the "
-              f"parts kept would not match", file=sys.stderr)
+    own = ONLY["free-robot"]
+    changed = sorted(k for k in args.settings
+                     if k not in own and data["settings"].get(k) != args.settings[k])
+    if changed:
+        print(f"--only free-robot: settings of the parts it keeps differ from the run in "
+              f"{out}: {changed}; only its own may change: {list(own)}", file=sys.stderr)
         return 2
     robot = gj.load(modules_dir)
     if robot.free is None:
@@ -387,6 +393,7 @@ def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_stri
                  extra=robot.config.get("extra"), free_modules=modules)
     strip = camera_strip(out / "beyond", k_strip)
     data["beyond"]["free"], data["beyond"]["strip"] = free, strip
+    data["settings"].update({k: args.settings[k] for k in own})
     data["wall_s"]["free_robot_rerun"] = time.perf_counter() - t
     data["libraries"] = library_versions()
     data["reruns"] = sorted({*data.get("reruns", []), "free-robot"})

@@ -12,8 +12,9 @@ bit, the action one-hot, then where the target is: the position one-hot (the pap
 ``target_obs="position"``), or its table coordinates for objects placed anywhere (see
 :mod:`grounding_jax.placement`) -- (x, y) scaled to [-1, 1] over the reachable region
 (``target_obs="xy"``) or as a population code of Gaussian bumps on a 3 x 7 grid over the
-region (``target_obs="population"``: the ``"free"`` task set). Action (``action_size`` = 4):
-the change of the 4 scaled joints.
+region (``target_obs="population"``: the ``"free"`` task set); with ``hand_obs`` (the
+``"free_hand"`` task set) three more units say where the palm is relative to the target.
+Action (``action_size`` = 4): the change of the 4 scaled joints.
 
 Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
 joints to the position's stored pointing pose; ``touch_l1`` / ``push_l1``: ... to the touching
@@ -247,9 +248,9 @@ FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
 #: relative to the target, as a robot watching its hand and the object would (the paper's
 #: "online visual feedback"). Same actions, rewards and success rules as :data:`FREE`.
 FREE_HAND = dataclasses.replace(FREE, name="free_hand", hand_obs=True)
-TASK_SETS: dict[str, TaskSet] = {PAPER.name: PAPER, FREE.name: FREE, FREE_HAND.name: FREE_HAND}
 #: The task sets that cannot be replaced (saved agents name them).
 BUILT_IN = (PAPER, FREE, FREE_HAND)
+TASK_SETS: dict[str, TaskSet] = {t.name: t for t in BUILT_IN}
 
 
 def register(task_set: TaskSet) -> TaskSet:

@@ -169,11 +169,12 @@ def test_only_free_robot_reruns_that_part_with_the_whole_runs_keys(quick, capsys
     robot = gj.load(quick / "modules")  # saved again: the paper's agent unchanged
     np.testing.assert_array_equal(robot.al.agent.actor.w1, paper_agent.actor.w1)
     assert robot.free is not None and "free-robot" in (quick / "REPORT.md").read_text()
-    # refused before anything runs: another profile's settings, or no run there
+    # refused before anything runs: a kept part's settings changed, or no run there
     capsys.readouterr()
     assert train.main(["--out", str(quick), "--only", "free-robot",
-                       "--set", "free_seeds=3"]) == 2
-    assert "free_seeds" in capsys.readouterr().err
+                       "--set", "al_seeds=4"]) == 2
+    err = capsys.readouterr().err
+    assert "al_seeds" in err and "free_seeds" in err  # what changed, and what may
     assert train.main(["--out", str(quick / "nothing"), "--only", "free-robot"]) == 2
     assert "needs a whole run" in capsys.readouterr().err
 
