@@ -352,6 +352,16 @@ def camera_strip(out: pathlib.Path, key) -> dict:
             "named": list(res["named"]) if res["named"] else None}
 
 
+def write_results(out: pathlib.Path, result: dict) -> None:
+    """A run's metrics.json, metrics.csv and REPORT.md in ``out`` (each written whole)."""
+    from grounding_jax._io import atomic_write_text
+    from grounding_jax.report import metrics_csv, report
+
+    atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
+    atomic_write_text(out / "metrics.csv", metrics_csv(result))
+    atomic_write_text(out / "REPORT.md", report(result))
+
+
 def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_strip) -> int:
     """``--only free-robot``: :func:`beyond_robot` and :func:`camera_strip` again with the keys
     a whole run gives them, on the continuous TL saved in ``out/modules``; the modules are
@@ -359,8 +369,7 @@ def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_stri
     part, metrics.csv and REPORT.md are rewritten, the other parts' results kept."""
     import grounding_jax as gj
     from grounding_jax import trained
-    from grounding_jax._io import atomic_write_text, library_versions
-    from grounding_jax.report import metrics_csv, report
+    from grounding_jax._io import library_versions
 
     metrics, modules_dir = out / "metrics.json", out / "modules"
     if not metrics.is_file() or not modules_dir.is_dir():
@@ -397,9 +406,7 @@ def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_stri
     data["wall_s"]["free_robot_rerun"] = time.perf_counter() - t
     data["libraries"] = library_versions()
     data["reruns"] = sorted({*data.get("reruns", []), "free-robot"})
-    atomic_write_text(metrics, json.dumps(data, indent=2) + "\n")
-    atomic_write_text(out / "metrics.csv", metrics_csv(data))
-    atomic_write_text(out / "REPORT.md", report(data))
+    write_results(out, data)
     print(f"rewrote the free robot's part of {out}: metrics.json, metrics.csv, REPORT.md, "
           f"modules/ ({data['wall_s']['free_robot_rerun']:.1f} s)")
     return 0
@@ -413,7 +420,7 @@ def main(argv: list[str] | None = None) -> int:
     from grounding_jax._io import atomic_write_text, library_versions
     from grounding_jax.cacla import CaclaConfig
     from grounding_jax.env import EnvConfig
-    from grounding_jax.report import metrics_csv, report
+    from grounding_jax.report import report
 
     gj.enable_compilation_cache()
 
@@ -459,9 +466,7 @@ def main(argv: list[str] | None = None) -> int:
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
               "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "wall_s": wall,
               "version": gj.__version__, "libraries": library_versions()}
-    atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
-    atomic_write_text(out / "metrics.csv", metrics_csv(result))
-    atomic_write_text(out / "REPORT.md", report(result))
+    write_results(out, result)
     print(f"wrote {out / 'REPORT.md'}, {out / 'metrics.json'}, metrics.csv, modules/ "
           f"({sum(wall.values()):.1f} s)")
     return 0
