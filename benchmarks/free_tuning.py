@@ -89,11 +89,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="a learner / env / trainer field changed from beyond.FREE_TUNED "
                     "(e.g. touch_bonus=0.1); repeatable")
-    ap.add_argument("--hand", action="store_true",
-                    help="the actor also sees the palm's offset to the target (hand_obs; "
-                    "the shipped family's)")
-    ap.add_argument("--no-hand", action="store_true",
-                    help="the actor does not see its palm (the 'free' task set)")
+    seen = ap.add_mutually_exclusive_group()
+    seen.add_argument("--hand", dest="hand", action="store_true", default=None,
+                      help="the actor also sees the palm's offset to the target (hand_obs; "
+                      "the shipped family's)")
+    seen.add_argument("--no-hand", dest="hand", action="store_false",
+                      help="the actor does not see its palm (the 'free' task set)")
     ap.add_argument("--tag", default=None, help="the result file's name (default: the push "
                     "reward)")
     args = ap.parse_args(argv)
@@ -115,10 +116,7 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error(f"--set: {e}")
     gj.enable_compilation_cache()
     cfg = beyond.config(args.phase1, args.phase2)
-    if args.hand and args.no_hand:
-        ap.error("--hand, --no-hand: choose one")
-    hand = tasks.get(cfg.learner.task_set).hand_obs if not (args.hand or args.no_hand) \
-        else args.hand
+    hand = tasks.get(cfg.learner.task_set).hand_obs if args.hand is None else args.hand
     task_set = tasks.FREE_HAND.name if hand else tasks.FREE.name
     if args.push_reward == "pose":
         task_set = POSE.name if not hand else tasks.register(dataclasses.replace(
