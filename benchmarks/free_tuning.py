@@ -9,7 +9,8 @@ touching pose) instead of the shipped reward (minus the palm's distance to the t
 centre, the paper's), to compare the two on the same agents.
 
 ``--no-hand`` hides from the actor where its palm is relative to the target (the ``"free"``
-task set; shipped: ``"free_hand"``, ``TaskSet.hand_obs``); ``--hand`` shows it.
+task set; shipped: ``"free_hand"``, ``TaskSet.hand_obs``); ``--hand`` shows it;
+``--hand-scale 0.05`` gives its units another length scale (shipped: ``tasks.HAND_SCALE``).
 ``--heads 0,1,1`` lets touch and push share a network (shipped: ``0,1,2``, one per
 action); ``--checkpoints 1000,1500`` also judges the agents at those episodes (the learning
 curve of one run).
@@ -17,7 +18,7 @@ curve of one run).
 Usage:  python benchmarks/free_tuning.py [--agents 8] [--phase1 1000] [--phase2 1000]
         [--placements 12] [--key 11] [--eval-key 999] [--push-reward pose|centre]
         [--heads 0,1,2] [--checkpoints 1000] [--set FIELD=VALUE] [--hand | --no-hand]
-        [--tag NAME]
+        [--hand-scale METRES] [--actor-hidden N] [--tag NAME]
 Prints the median agent's success per action (min-max over agents), by slot, and the share of
 episodes that moved a wrong object, at each checkpoint and at the end; writes
 results/benchmarks/free_tuning_<tag>.json (tag: the push reward unless given).
@@ -38,7 +39,7 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import al, beyond, tasks  # noqa: E402
+from grounding_jax import al, beyond, placement, tasks  # noqa: E402
 from grounding_jax import al_experiments as alx  # noqa: E402
 from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
 from grounding_jax.env import Env  # noqa: E402
@@ -95,6 +96,11 @@ def main(argv: list[str] | None = None) -> dict:
                       "the shipped family's)")
     seen.add_argument("--no-hand", dest="hand", action="store_false",
                       help="the actor does not see its palm (the 'free' task set)")
+    ap.add_argument("--actor-hidden", type=int, default=None, metavar="N",
+                    help="each actor's hidden units (shipped: beyond.FREE_LEARNER's)")
+    ap.add_argument("--hand-scale", type=float, default=None, metavar="METRES",
+                    help="the hand units' length scale (shipped: tasks.HAND_SCALE); with "
+                    "the hand units only")
     ap.add_argument("--tag", default=None, help="the result file's name (default: the push "
                     "reward)")
     args = ap.parse_args(argv)
@@ -121,10 +127,24 @@ def main(argv: list[str] | None = None) -> dict:
     if args.push_reward == "pose":
         task_set = POSE.name if not hand else tasks.register(dataclasses.replace(
             POSE, name=f"{POSE.name}_hand", hand_obs=True)).name
+    if args.hand_scale is not None:
+        if not hand:
+            ap.error("--hand-scale: the actor does not see its palm (--no-hand)")
+        try:
+            task_set = tasks.register(dataclasses.replace(
+                tasks.get(task_set), name=f"{task_set}_s{args.hand_scale:g}",
+                hand_scale=args.hand_scale)).name
+        except ValueError as e:
+            ap.error(f"--hand-scale: {e}")
     try:
         learner = dataclasses.replace(cfg.learner, task_set=task_set, heads=args.heads)
     except ValueError as e:
         ap.error(f"--heads: {e}")
+    if args.actor_hidden is not None:
+        try:
+            learner = dataclasses.replace(learner, actor_hidden=args.actor_hidden)
+        except ValueError as e:
+            ap.error(f"--actor-hidden: {e}")
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task_set=task_set),
                               learner=learner)
     bad = [c for c in args.checkpoints if not 0 < c < cfg.episodes]
@@ -161,6 +181,8 @@ def main(argv: list[str] | None = None) -> dict:
     tag = args.tag or args.push_reward
     res = {**vars(args), "changed": changed, "heads": list(args.heads),
            "checkpoints": list(args.checkpoints), "train_s": train_s, **final, "curve": curve,
+           # the touching pose's depth into the target's top (the map in the package's assets)
+           "touch_depth_m": float(placement.touch_map()["depth"]),
            "libraries": library_versions()}
     print(f"training and judging {train_s:.0f} s")
     out_dir = pathlib.Path("results/benchmarks")

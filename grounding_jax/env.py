@@ -365,7 +365,7 @@ class Env:
         if not self.tasks.hand_obs:
             return units
         told = jnp.concatenate([xy, target[2:]])
-        return jnp.concatenate([units, jnp.tanh((palm - told) / tasks.HAND_SCALE)])
+        return jnp.concatenate([units, jnp.tanh((palm - told) / self.tasks.hand_scale)])
 
     def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams):
         """Observation, reward and per-step metrics of a physics state (``object_start``:

@@ -33,6 +33,7 @@ episode that moved a wrong object fails whatever the rule says).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -126,16 +127,18 @@ class TaskSet:
             ``"population"`` (those coordinates as Gaussian bumps on ``POPULATION_GRID``; see
             :func:`placement.population`).
         hand_obs: three more units after the target's: where the palm is relative to the
-            target, ``tanh((palm - target) / HAND_SCALE)`` per axis (x, y, z), the target's
+            target, ``tanh((palm - target) / hand_scale)`` per axis (x, y, z), the target's
             (x, y) being what the actor is told (the TL's estimate when the robot performs)
             and its height the objects' centre. Needs table coordinates (``target_obs``
             ``"xy"`` or ``"population"``).
+        hand_scale: the hand units' length scale in metres (default ``HAND_SCALE``).
     """
 
     name: str
     actions: tuple[Action, ...]
     target_obs: str = "position"
     hand_obs: bool = False
+    hand_scale: float = HAND_SCALE
 
     def __post_init__(self) -> None:
         names = self.action_names
@@ -147,6 +150,10 @@ class TaskSet:
         if self.hand_obs and self.target_obs == "position":
             raise ValueError("hand_obs: needs the target's table coordinates; accepted "
                              "target_obs with it: 'xy', 'population'")
+        if not (isinstance(self.hand_scale, (int, float)) and math.isfinite(self.hand_scale)
+                and self.hand_scale > 0):
+            raise ValueError(f"hand_scale: must be a finite number of metres > 0, got "
+                             f"{self.hand_scale!r}")
 
     @property
     def action_names(self) -> tuple[str, ...]:

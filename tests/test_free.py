@@ -115,8 +115,11 @@ def test_the_free_actor_is_told_the_targets_coordinates(env):
 
 
 def test_the_hand_units_say_where_the_palm_is_relative_to_the_told_target():
+    # a length scale other than the shipped one, so the test sees the field used
     hand = tasks.register(tasks.TaskSet("free_hand_test", tasks.FREE.actions,
-                                        target_obs="population", hand_obs=True))
+                                        target_obs="population", hand_obs=True,
+                                        hand_scale=0.05))
+    assert tasks.FREE_HAND.hand_scale == tasks.HAND_SCALE
     n = tasks.POPULATION_GRID[0] * tasks.POPULATION_GRID[1]
     assert hand.obs_hand == slice(8 + n, 11 + n) and hand.obs_size == tasks.FREE.obs_size + 3
     assert tasks.FREE.obs_hand == slice(8 + n, 8 + n)  # the shipped family has none
@@ -126,7 +129,7 @@ def test_the_hand_units_say_where_the_palm_is_relative_to_the_told_target():
     s = env.reset(jax.random.key(0), told)
     target_z = scene.TABLE_Z + scene.OBJECT_HALF
     want = lambda st, xy: np.tanh(  # noqa: E731
-        (np.asarray(st.info["palm_pos"]) - np.array([*xy, target_z])) / tasks.HAND_SCALE)
+        (np.asarray(st.info["palm_pos"]) - np.array([*xy, target_z])) / 0.05)
     np.testing.assert_allclose(s.obs[hand.obs_hand], want(s, (-0.22, 0.2)), atol=1e-5)
     np.testing.assert_allclose(s.obs[hand.obs_target], free.target_units(
         jnp.array([-0.22, 0.2]), "population"), atol=1e-6)
@@ -139,6 +142,10 @@ def test_the_hand_units_say_where_the_palm_is_relative_to_the_told_target():
     assert agent.actor.w1.shape[0] == hand.obs_size
     with pytest.raises(ValueError, match="hand_obs: needs the target's table coordinates"):
         tasks.TaskSet("bad_hand", tasks.PAPER.actions, hand_obs=True)
+    for bad in (0.0, -0.1, float("nan"), "0.1"):
+        with pytest.raises(ValueError, match="hand_scale: must be a finite number"):
+            tasks.TaskSet("bad_hand", tasks.FREE.actions, target_obs="population",
+                          hand_obs=True, hand_scale=bad)
 
 
 def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):
