@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -150,8 +151,8 @@ class TaskSet:
         if self.hand_obs and self.target_obs == "position":
             raise ValueError("hand_obs: needs the target's table coordinates; accepted "
                              "target_obs with it: 'xy', 'population'")
-        if not (isinstance(self.hand_scale, (int, float)) and math.isfinite(self.hand_scale)
-                and self.hand_scale > 0):
+        if (isinstance(self.hand_scale, bool) or not isinstance(self.hand_scale, numbers.Real)
+                or not math.isfinite(self.hand_scale) or self.hand_scale <= 0):
             raise ValueError(f"hand_scale: must be a finite number of metres > 0, got "
                              f"{self.hand_scale!r}")
 

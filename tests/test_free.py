@@ -142,7 +142,7 @@ def test_the_hand_units_say_where_the_palm_is_relative_to_the_told_target():
     assert agent.actor.w1.shape[0] == hand.obs_size
     with pytest.raises(ValueError, match="hand_obs: needs the target's table coordinates"):
         tasks.TaskSet("bad_hand", tasks.PAPER.actions, hand_obs=True)
-    for bad in (0.0, -0.1, float("nan"), "0.1"):
+    for bad in (0.0, -0.1, float("nan"), float("inf"), "0.1", True):
         with pytest.raises(ValueError, match="hand_scale: must be a finite number"):
             tasks.TaskSet("bad_hand", tasks.FREE.actions, target_obs="population",
                           hand_obs=True, hand_scale=bad)
