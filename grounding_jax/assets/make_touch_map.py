@@ -7,7 +7,8 @@ kept (README "Beyond the paper"; ``benchmarks/free_tuning.py --push-reward pose`
 
 - A *touching* pose puts the palm site ``TOUCH_DEPTH`` below the top face of an object
   standing at (x, y): the palm presses down on the object's top, which the table holds still,
-  instead of shoving it sideways. A scripted arm that moves there gently (README "Beyond the
+  instead of shoving it sideways (1.25 cm since the tuning rows of README "Beyond the paper";
+  1 cm before). A scripted arm that moves gently to the 1 cm pose (README "Beyond the
   paper") touches 94% of the held-out targets without moving them 3 cm.
 - A *pushing* pose puts the palm site ``PUSH_BEHIND`` on the robot's side of the object's
   centre, ``PUSH_RISE`` above it: the palm comes to the object's near face and, reaching the
@@ -43,7 +44,7 @@ from grounding_jax import ik, placement, scene  # noqa: E402
 
 OUT = {"touch": placement.TOUCH_MAP, "push": placement.PUSH_MAP}
 #: Metres below the object's top face that touch sends the palm site to (it presses on it).
-TOUCH_DEPTH = 0.01
+TOUCH_DEPTH = 0.0125
 #: Push sends the palm site this far toward the robot (+x) from the object's centre ...
 PUSH_BEHIND = 0.01
 #: ... and this far above the centre (metres).
