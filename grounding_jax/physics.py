@@ -5,7 +5,7 @@ the new ``(qpos, qvel)`` and the sensor readings of the last substep:
 
 - ``"mjx"``: pure JAX (``mujoco.mjx``), the path for GPUs;
 - ``"mujoco"``: C MuJoCo through a persistent ``mujoco.rollout.Rollout`` thread pool, called
-  from JAX with ``jax.pure_callback``, the fast path on CPUs.
+  from JAX as a named XLA FFI target (``_ffi``), the fast path on CPUs.
 
 The physics state carried between RL steps is only ``qpos, qvel`` (float32). The solver's warm
 start is reset to zero at each RL step on both backends, so a step depends only on its inputs
@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from grounding_jax import scene
+from grounding_jax import _ffi, scene
 
 BACKENDS = ("mujoco", "mjx")
 
@@ -114,23 +114,36 @@ def mujoco_runner(nthread: int | None = None) -> _MujocoRunner:
     return _MujocoRunner(nthread)
 
 
+STEP_TARGET = "grounding_jax_mujoco_step"
+FORWARD_TARGET = "grounding_jax_mujoco_forward"
+
+
+def _split(x: np.ndarray, sizes: list[int]) -> list[np.ndarray]:
+    return np.split(x, np.cumsum(sizes)[:-1], axis=-1)
+
+
+def _step_handler(ins: list[np.ndarray], outs: list[np.ndarray], attrs: dict) -> None:
+    idx = scene.index()
+    q, v, u, live = _split(ins[0], [idx.nq, idx.nv, idx.nu, 1])
+    res = mujoco_runner().step(q, v, u, int(attrs["substeps"]), live[..., 0] > 0.5)
+    outs[0][...] = np.concatenate(res, axis=-1)
+
+
+def _forward_handler(ins: list[np.ndarray], outs: list[np.ndarray], attrs: dict) -> None:
+    idx = scene.index()
+    q, v, live = _split(ins[0], [idx.nq, idx.nv, 1])
+    outs[0][...] = mujoco_runner().forward(q, v, live[..., 0] > 0.5)
+
+
 def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
     idx = scene.index()
     f32 = jnp.float32
     nq, nv = idx.nq, idx.nv
-    # Each callback takes one array and returns one: JAX's callback machinery costs per
-    # array (~120 us for one on this CPU, ~240 us for four), which is paid at every RL step.
-
-    def run_step(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x)  # the callback is handed a jax.Array: slice it as NumPy
-        q, v, u, live = np.split(x, [nq, nq + nv, x.shape[-1] - 1], axis=-1)
-        out = mujoco_runner().step(q, v, u, substeps, live[..., 0] > 0.5)
-        return np.concatenate(out, axis=-1)
-
-    def run_forward(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x)
-        q, v, live = np.split(x, [nq, nq + nv], axis=-1)
-        return mujoco_runner().forward(q, v, live[..., 0] > 0.5)
+    # C MuJoCo is called as a named XLA FFI target (``_ffi``), not through
+    # ``jax.pure_callback``: those programs go to JAX's persistent cache. Each call takes one
+    # array and returns one, so the per-array cost of crossing into Python is paid once.
+    _ffi.register(STEP_TARGET, _step_handler)
+    _ffi.register(FORWARD_TARGET, _forward_handler)
 
     def flag(live, lead):
         live = jnp.ones(lead, bool) if live is None else live
@@ -140,14 +153,15 @@ def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
         lead = qpos.shape[:-1]
         x = jnp.concatenate([qpos, qvel, ctrl.astype(f32), flag(live, lead)], axis=-1)
         shape = jax.ShapeDtypeStruct(lead + (nq + nv + idx.nsensordata,), f32)
-        y = jax.pure_callback(run_step, shape, x, vmap_method="broadcast_all")
+        y = jax.ffi.ffi_call(STEP_TARGET, shape, vmap_method="broadcast_all")(
+            x, substeps=np.int32(substeps))
         return y[..., :nq], y[..., nq:nq + nv], y[..., nq + nv:]
 
     def forward(qpos, qvel, live=None):
         lead = qpos.shape[:-1]
         x = jnp.concatenate([qpos, qvel, flag(live, lead)], axis=-1)
         shape = jax.ShapeDtypeStruct(lead + (idx.nsensordata,), f32)
-        return jax.pure_callback(run_forward, shape, x, vmap_method="broadcast_all")
+        return jax.ffi.ffi_call(FORWARD_TARGET, shape, vmap_method="broadcast_all")(x)
 
     return step, forward
 

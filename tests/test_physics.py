@@ -38,3 +38,49 @@ def test_rollout_runner_equals_a_plain_mj_step_loop():
 def test_unknown_backend_names_the_accepted_values():
     with pytest.raises(ValueError, match=r"backend: unknown value 'bullet'.*'mujoco', 'mjx'"):
         physics.make_physics("bullet", 10)
+
+
+def _batch(lead: tuple[int, ...], seed: int = 0):
+    m, idx = scene.model(), scene.index()
+    rng = np.random.default_rng(seed)
+    qpos = np.broadcast_to(scene.home_qpos(), lead + (m.nq,)).astype(np.float32).copy()
+    qpos[..., idx.arm_qpos] += rng.uniform(-0.2, 0.2, lead + (4,)).astype(np.float32)
+    qvel = np.zeros(lead + (m.nv,), np.float32)
+    ctrl = qpos[..., idx.arm_qpos] + rng.uniform(-0.1, 0.1, lead + (4,)).astype(np.float32)
+    return qpos, qvel, ctrl
+
+
+def test_jax_step_through_the_ffi_target_equals_the_runner_and_skips_dead_rows():
+    import jax
+
+    step, forward = physics.make_physics("mujoco", 7)
+    qpos, qvel, ctrl = _batch((2, 3))
+    live = np.array([[True, False, True], [False, True, True]])
+    q, v, s = jax.jit(jax.vmap(step))(qpos, qvel, ctrl, live)  # vmap: the batch rule too
+    q1, v1, s1 = physics.mujoco_runner().step(qpos, qvel, ctrl, 7, live)
+    np.testing.assert_array_equal(np.asarray(q), q1)
+    np.testing.assert_array_equal(np.asarray(v), v1)
+    np.testing.assert_array_equal(np.asarray(s), s1)
+    np.testing.assert_array_equal(np.asarray(q)[~live], qpos[~live])  # dead rows: unchanged
+    assert not np.allclose(np.asarray(q)[live], qpos[live])
+    sens = jax.jit(forward)(qpos, qvel, live)
+    np.testing.assert_array_equal(np.asarray(sens), physics.mujoco_runner().forward(
+        qpos, qvel, live))
+    text = jax.jit(step).lower(qpos, qvel, ctrl).as_text()
+    # a named target, not a host callback: such programs go to JAX's persistent cache
+    assert physics.STEP_TARGET in text and "callback" not in text
+
+
+def test_an_error_inside_an_ffi_handler_reaches_the_caller():
+    import jax
+    import jax.numpy as jnp
+
+    from grounding_jax import _ffi
+
+    def handler(ins, outs, attrs):
+        raise ValueError(f"bad rows: {ins[0].shape}, rows={attrs['rows']}")
+
+    _ffi.register("grounding_jax_test_raise", handler)
+    call = jax.ffi.ffi_call("grounding_jax_test_raise", jax.ShapeDtypeStruct((2,), jnp.float32))
+    with pytest.raises(Exception, match=r"ValueError: bad rows: \(2, 3\), rows=7"):
+        jax.block_until_ready(jax.jit(lambda x: call(x, rows=np.int64(7)))(jnp.ones((2, 3))))
