@@ -6,6 +6,7 @@ its ``__post_init__``) -- and the sweep runner's field checks read the same tabl
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Callable
 from typing import Any
 
@@ -55,12 +56,12 @@ def integer_at_least(n: int, text: str = "") -> Rule:
 
 def check_config(obj: Any, rules: dict[str, Rule]) -> None:
     """ValueError naming the first static field of a config that breaks its rule (a field
-    whose rule counts needs a Python integer, not a bool or a float)."""
+    whose rule counts needs a Python integer, not a bool or a float; any other field a real
+    number, not a bool or a string)."""
     for name, rule in rules.items():
         v = getattr(obj, name)
-        not_int = rule.type is int and (not isinstance(v, (int, np.integer))
-                                        or isinstance(v, bool))
-        if not_int or not rule.holds(v):
+        kind = (int, np.integer) if rule.type is int else numbers.Real
+        if isinstance(v, bool) or not isinstance(v, kind) or not rule.holds(v):
             raise ValueError(f"{name}: must be {rule.text}, got {v!r}")
 
 

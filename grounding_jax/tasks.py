@@ -33,13 +33,13 @@ episode that moved a wrong object fails whatever the rule says).
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+
+from grounding_jax._checks import Rule, check_config
 
 POSITIONS = ("left", "middle", "right")
 SHAPES = ("box", "cylinder", "sphere")
@@ -54,6 +54,9 @@ POPULATION_GRID = (3, 7)
 #: The hand units' length scale (metres): ``tanh(offset / HAND_SCALE)`` per axis, fine near the
 #: target (1 cm moves a unit by ~0.1) and saturating past ~20 cm.
 HAND_SCALE = 0.1
+#: What a task set's numeric fields accept.
+CONFIG_RULES: dict[str, Rule] = {"hand_scale": Rule("a finite number of metres > 0",
+                                                    lambda v: v > 0)}
 N_JOINTS = 4
 N_POSITIONS = len(POSITIONS)
 N_WORDS = len(TARGET_WORDS)
@@ -151,10 +154,7 @@ class TaskSet:
         if self.hand_obs and self.target_obs == "position":
             raise ValueError("hand_obs: needs the target's table coordinates; accepted "
                              "target_obs with it: 'xy', 'population'")
-        if (isinstance(self.hand_scale, bool) or not isinstance(self.hand_scale, numbers.Real)
-                or not math.isfinite(self.hand_scale) or self.hand_scale <= 0):
-            raise ValueError(f"hand_scale: must be a finite number of metres > 0, got "
-                             f"{self.hand_scale!r}")
+        check_config(self, CONFIG_RULES)
 
     @property
     def action_names(self) -> tuple[str, ...]:

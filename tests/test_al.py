@@ -214,3 +214,23 @@ def test_another_learner_trains_and_evaluates_through_the_seam():
     assert hidden.shape == (6, 4) and traj.obs.shape == (6, 11)
     np.testing.assert_allclose(np.asarray(hidden[0]), np.asarray(first.obs @ state.w),
                                rtol=1e-5, atol=1e-6)
+
+
+def test_a_config_float_rule_refuses_strings_bools_and_non_finite_values():
+    from grounding_jax._checks import check_config, integer_at_least
+
+    @dataclasses.dataclass(frozen=True)
+    class Cfg:
+        rate: Any = 0.5
+        count: Any = 3
+
+    rules = {"rate": POSITIVE, "count": integer_at_least(1)}
+    check_config(Cfg(), rules)
+    check_config(Cfg(rate=2, count=np.int64(4)), rules)  # an int is a real; NumPy ints count
+    check_config(Cfg(rate=np.float32(0.1)), rules)
+    for bad in ("0.5", True, None, float("nan"), float("inf"), -1.0, 0.0):
+        with pytest.raises(ValueError, match=r"rate: must be > 0, got"):
+            check_config(Cfg(rate=bad), rules)
+    for bad in (2.0, True, "3", 0):
+        with pytest.raises(ValueError, match=r"count: must be an integer >= 1, got"):
+            check_config(Cfg(count=bad), rules)
