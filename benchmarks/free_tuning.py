@@ -183,6 +183,8 @@ def main(argv: list[str] | None = None) -> dict:
            "checkpoints": list(args.checkpoints), "train_s": train_s, **final, "curve": curve,
            # the touching pose's depth into the target's top (the map in the package's assets)
            "touch_depth_m": float(placement.touch_map()["depth"]),
+           # 0: the touch map as solved node by node (before smoothing shipped)
+           "touch_smooth_weight": float(placement.touch_map().get("smooth_weight", 0.0)),
            "libraries": library_versions()}
     print(f"training and judging {train_s:.0f} s")
     out_dir = pathlib.Path("results/benchmarks")

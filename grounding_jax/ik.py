@@ -16,6 +16,40 @@ def palm_down_error(d: mujoco.MjData, site: int) -> np.ndarray:
     return normal - np.array([0.0, 0.0, -1.0])
 
 
+class _Palm:
+    """The scene at home, for IK on the palm site: position and palm-down errors, Jacobians."""
+
+    def __init__(self) -> None:
+        self.m, self.idx = scene.model(), scene.index()
+        self.d = mujoco.MjData(self.m)
+        self.d.qpos[:] = scene.home_qpos()
+        self.site = self.m.site("palm").id
+        self.lo, self.hi = self.idx.joint_range[:, 0], self.idx.joint_range[:, 1]
+        self.jacp = np.zeros((3, self.m.nv))
+        self.jacr = np.zeros((3, self.m.nv))
+
+    def terms(self, q: np.ndarray, target: np.ndarray):
+        """(position error, palm-down error, position Jacobian, palm-normal Jacobian) at
+        ``q``, all over the four arm joints."""
+        m, d, idx = self.m, self.d, self.idx
+        d.qpos[idx.arm_qpos] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        err_p = target - d.site_xpos[self.site]
+        err_o = palm_down_error(d, self.site)
+        mujoco.mj_jacSite(m, d, self.jacp, self.jacr, self.site)
+        jp = self.jacp[:, idx.arm_dof]
+        normal = -d.site_xmat[self.site].reshape(3, 3)[:, 1]
+        jo = np.cross(self.jacr[:, idx.arm_dof].T, normal).T  # d(normal)/dq_i = jacr_i x normal
+        return err_p, err_o, jp, jo
+
+    def error(self, q: np.ndarray, target: np.ndarray) -> float:
+        """Distance (metres) from the palm site at ``q`` to ``target``."""
+        self.d.qpos[self.idx.arm_qpos] = q
+        mujoco.mj_kinematics(self.m, self.d)
+        return float(np.linalg.norm(target - self.d.site_xpos[self.site]))
+
+
 def solve(target: np.ndarray, q0: np.ndarray, iters: int = 400) -> tuple[np.ndarray, float]:
     """Place the palm site at ``target`` with the four arm joints, palm down where possible.
 
@@ -30,32 +64,48 @@ def solve(target: np.ndarray, q0: np.ndarray, iters: int = 400) -> tuple[np.ndar
     Returns:
         (joint angles in radians, remaining position error in metres).
     """
-    m = scene.model()
-    idx = scene.index()
-    d = mujoco.MjData(m)
-    d.qpos[:] = scene.home_qpos()
-    site = m.site("palm").id
-    lo, hi = idx.joint_range[:, 0], idx.joint_range[:, 1]
-    q = np.clip(np.asarray(q0, float).copy(), lo, hi)
-    jacp = np.zeros((3, m.nv))
-    jacr = np.zeros((3, m.nv))
+    arm = _Palm()
+    q = np.clip(np.asarray(q0, float).copy(), arm.lo, arm.hi)
     for _ in range(iters):
-        d.qpos[idx.arm_qpos] = q
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        err_p = target - d.site_xpos[site]
-        err_o = palm_down_error(d, site)
-        mujoco.mj_jacSite(m, d, jacp, jacr, site)
-        jp = jacp[:, idx.arm_dof]
-        normal = -d.site_xmat[site].reshape(3, 3)[:, 1]
-        jo = np.cross(jacr[:, idx.arm_dof].T, normal).T  # d(normal)/dq_i = jacr_i x normal
+        err_p, err_o, jp, jo = arm.terms(q, target)
         jpinv = jp.T @ np.linalg.inv(jp @ jp.T + 1e-5 * np.eye(3))
         null = np.eye(4) - jpinv @ jp
         dq = jpinv @ err_p - ORIENT_GAIN * null @ (jo.T @ err_o)
-        q = np.clip(q + 0.5 * dq, lo, hi)
-    d.qpos[idx.arm_qpos] = q
-    mujoco.mj_kinematics(m, d)
-    return q, float(np.linalg.norm(target - d.site_xpos[site]))
+        q = np.clip(q + 0.5 * dq, arm.lo, arm.hi)
+    return q, arm.error(q, target)
+
+
+def solve_near(target: np.ndarray, prior: np.ndarray, weight: float,
+               orient_weight: float = 1e-5, iters: int = 200) -> tuple[np.ndarray, float]:
+    """Place the palm site at ``target`` while staying near the pose ``prior``.
+
+    Gauss-Newton on ``|target - palm(q)|^2 + orient_weight |palm-down error|^2
+    + weight |scaled(q) - scaled(prior)|^2`` (metres; joints in the paper's scaled units),
+    from ``prior``, within the model's joint limits. Where the arm can reach the target in
+    several ways, the pull toward ``prior`` picks the one near it: a map of such poses is as
+    smooth as its priors.
+
+    Args:
+        target: palm position in the world frame (metres).
+        prior: the pose to stay near (radians, 4); also the start.
+        weight: the pull toward ``prior`` (per scaled-joint unit squared).
+        orient_weight: the pull toward palm down.
+        iters: iterations.
+
+    Returns:
+        (joint angles in radians, remaining position error in metres).
+    """
+    arm = _Palm()
+    lim = np.radians(scene.PAPER_LIMITS_DEG)
+    s2 = (2.0 / (lim[:, 1] - lim[:, 0])) ** 2  # d(scaled)/dq, squared
+    prior = np.clip(np.asarray(prior, float), arm.lo, arm.hi)
+    q = prior.copy()
+    for _ in range(iters):
+        err_p, err_o, jp, jo = arm.terms(q, target)
+        hess = jp.T @ jp + orient_weight * jo.T @ jo + np.diag(weight * s2 + 1e-9)
+        grad = jp.T @ err_p - orient_weight * jo.T @ err_o + weight * s2 * (prior - q)
+        q = np.clip(q + np.linalg.solve(hess, grad), arm.lo, arm.hi)
+    return q, arm.error(q, target)
 
 
 def _posed(q: np.ndarray, forward: bool = False) -> tuple[mujoco.MjModel, mujoco.MjData]:

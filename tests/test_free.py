@@ -81,6 +81,17 @@ def test_the_touch_and_push_maps_put_the_palm_at_their_point(action):
     assert checked >= 20  # most of the region is reached
 
 
+def test_ik_solve_near_reaches_the_target_or_stays_at_its_prior_by_weight():
+    q_true = free.touch_map()["joints"][4, 9].astype(float)
+    target = ik.palm_position(q_true)
+    prior = q_true + np.array([0.05, -0.05, 0.05, -0.05])
+    q, err = ik.solve_near(target, prior, weight=1e-7)
+    assert err < 5e-4 and np.linalg.norm(ik.palm_position(q) - target) == pytest.approx(err)
+    q, err = ik.solve_near(target, prior, weight=1e3)  # the pull wins: it stays put
+    assert np.abs(ik.scaled(q) - ik.scaled(prior)).sum() < 1e-3
+    assert err > 5e-3
+
+
 def test_the_free_actor_is_told_the_targets_coordinates(env):
     n = tasks.POPULATION_GRID[0] * tasks.POPULATION_GRID[1]
     assert tasks.FREE.target_obs == "population"
