@@ -95,6 +95,9 @@ class EnvParams:
             target has moved (``tasks.FREE``; the paper family does not use it).
         touch_bonus: added to the free family's touch reward while the arm touches the
             target (the paper family does not use it).
+        touch_still_penalty: the free family's touch reward loses this much per scaled-joint
+            unit (L1) the arm moves in a step while it touches the target: once in contact,
+            hold still (0, the default: off; the paper family does not use it).
         wrong_move_threshold: metres a non-target object may move before it counts as moved.
         wrong_move_extra_steps: steps the episode goes on after a wrong object moved.
         start_noise: half-width (scaled joint units) of the uniform random start around the
@@ -107,6 +110,7 @@ class EnvParams:
     touch_target_penalty: Any = -0.3
     touch_moved_penalty: Any = 10.0
     touch_bonus: Any = 0.0
+    touch_still_penalty: Any = 0.0
     wrong_move_threshold: Any = 0.01
     wrong_move_extra_steps: Any = 3
     start_noise: Any = 0.0
@@ -120,7 +124,8 @@ class EnvParams:
 #: What each field of :class:`EnvParams` accepts (``validate`` and the sweep runner read it).
 PARAM_RULES: dict[str, Rule] = {
     "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
-    "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE, "wrong_move_threshold": POSITIVE,
+    "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE,
+    "touch_still_penalty": NON_NEGATIVE, "wrong_move_threshold": POSITIVE,
     "wrong_move_extra_steps": integer_at_least(0), "start_noise": NON_NEGATIVE,
 }
 
@@ -367,11 +372,15 @@ class Env:
         told = jnp.concatenate([xy, target[2:]])
         return jnp.concatenate([units, jnp.tanh((palm - told) / self.tasks.hand_scale)])
 
-    def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams):
+    def _evaluate(self, qpos, sensordata, task: Task, object_start, params: EnvParams,
+                  joints_before=None):
         """Observation, reward and per-step metrics of a physics state (``object_start``:
         where each object is meant to be -- where it stood at reset, or a moving target's
-        point on its path)."""
+        point on its path; ``joints_before``: the scaled joints before this step, None at
+        reset)."""
         joints = scale_joints(qpos[self._idx.arm_qpos])
+        arm_moved = (jnp.zeros((), jnp.float32) if joints_before is None
+                     else jnp.sum(jnp.abs(joints - joints_before)))
         contacts = jnp.any(sensordata[self._idx.sensor_contact] > 0, axis=1)  # [shape]
         palm = sensordata[self._idx.sensor_palm_pos]
         obs = jnp.concatenate([
@@ -407,6 +416,7 @@ class Env:
             "touched_other": jnp.any(contacts & ~is_target).astype(jnp.float32),
             "target_moved": moved[target_shape],
             "wrong_moved": jnp.any((moved > params.wrong_move_threshold) & ~is_target),
+            "arm_moved": arm_moved,  # scaled-joint L1 the arm moved in this step
         }
         reward = self.tasks.reward(task.action, terms, params)
         return obs, reward.astype(jnp.float32), terms
@@ -489,11 +499,13 @@ class Env:
         action = action.astype(jnp.float32)
         nan = jnp.isnan(action)
         action = jnp.where(nan, 0.0, action)
-        target = scale_joints(state.qpos[self._idx.arm_qpos]) + params.action_scale * action
+        before = scale_joints(state.qpos[self._idx.arm_qpos])
+        target = before + params.action_scale * action
         ctrl = jnp.clip(unscale_joints(target), self._range[:, 0], self._range[:, 1])
         qpos, qvel, object_start = self._slide(state)
         qpos, qvel, sensordata = self._physics_step(qpos, qvel, ctrl, ~state.done)
-        obs, reward, terms = self._evaluate(qpos, sensordata, state.task, object_start, params)
+        obs, reward, terms = self._evaluate(qpos, sensordata, state.task, object_start, params,
+                                            before)
         step = state.step + 1
         wrong_since = jnp.where((state.wrong_since < 0) & terms["wrong_moved"], step,
                                 state.wrong_since)

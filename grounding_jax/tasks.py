@@ -227,9 +227,11 @@ def _free_point_reward(t: Terms, params: Any) -> jax.Array:
 def _free_touch_reward(t: Terms, params: Any) -> jax.Array:
     # a pose to reach, as point's: the palm pressed down on the target's top, which the table
     # holds still (a reward on the palm's distance to the target's centre drove it through
-    # the object's side); a bonus while touching; a penalty on how far the target moved
+    # the object's side); a bonus while touching; a penalty on how far the target moved; one
+    # on moving the arm while touching (0 by default: it adds exactly nothing then)
     return (-t["touch_l1"] + jnp.where(t["touched_target"] > 0, params.touch_bonus, 0.0)
-            - params.touch_moved_penalty * t["target_moved"] + _avoid(t, params))
+            - params.touch_moved_penalty * t["target_moved"] + _avoid(t, params)
+            - params.touch_still_penalty * t["touched_target"] * t["arm_moved"])
 
 
 def _free_push_reward(t: Terms, params: Any) -> jax.Array:

@@ -182,6 +182,29 @@ def test_a_moving_target_slides_at_its_speed_and_stops_at_the_border(env):
         gj.make_task("point", "left", 0, "free", placement=placed)
 
 
+def test_the_touch_reward_can_ask_the_arm_to_hold_still_while_it_touches(env):
+    placed = free.sample(jax.random.key(2))
+    s = env.reset(jax.random.key(0), gj.make_task("touch", "right", 5, "free", placement=placed))
+    assert float(s.metrics["arm_moved"]) == 0.0
+    s1 = jax.jit(env.step)(s, jnp.array([0.5, -0.5, 0.5, 0.0]))
+    moved = jnp.sum(jnp.abs(s1.obs[:4] - s.obs[:4]))  # the scaled joints, before and after
+    assert float(moved) > 0.01
+    np.testing.assert_allclose(s1.metrics["arm_moved"], moved, rtol=1e-5)
+    t = {"touch_l1": 0.2, "touched_target": 1.0, "target_moved": 0.0, "touched_other": 0.0,
+         "wrong_moved": False, "arm_moved": 0.3}
+    touch = tasks.FREE.actions[tasks.FREE.action_names.index("touch")]
+
+    def reward(terms, **params):
+        return float(touch.reward(terms, gj.EnvParams(**params)))
+
+    assert reward(t) == pytest.approx(-0.2)  # off by default
+    assert reward(t, touch_still_penalty=2.0) == pytest.approx(-0.2 - 2.0 * 0.3)
+    # only while touching: an arm moving in the air pays nothing
+    assert reward({**t, "touched_target": 0.0}, touch_still_penalty=2.0) == pytest.approx(-0.2)
+    with pytest.raises(ValueError, match="touch_still_penalty: must be >= 0, got -1"):
+        gj.EnvParams(touch_still_penalty=-1.0).validate()
+
+
 def test_bad_free_settings_are_refused_by_name():
     with pytest.raises(ValueError, match="placement: unknown value 'anywhere'"):
         al.ALConfig(placement="anywhere")
