@@ -179,12 +179,13 @@ def main(argv: list[str] | None = None) -> dict:
     train_s = time.perf_counter() - t
     final = curve[str(cfg.episodes)]
     tag = args.tag or args.push_reward
+    touch_map = placement.touch_map()  # the map in the package's assets, as trained on
     res = {**vars(args), "changed": changed, "heads": list(args.heads),
            "checkpoints": list(args.checkpoints), "train_s": train_s, **final, "curve": curve,
-           # the touching pose's depth into the target's top (the map in the package's assets)
-           "touch_depth_m": float(placement.touch_map()["depth"]),
-           # 0: the touch map as solved node by node (before smoothing shipped)
-           "touch_smooth_weight": float(placement.touch_map().get("smooth_weight", 0.0)),
+           # the touching pose's depth into the target's top
+           "touch_depth_m": float(touch_map["depth"]),
+           # 0: solved node by node, as shipped; > 0: make_touch_map.py --smooth's weight
+           "touch_smooth_weight": float(touch_map.get("smooth_weight", 0.0)),
            "libraries": library_versions()}
     print(f"training and judging {train_s:.0f} s")
     out_dir = pathlib.Path("results/benchmarks")
