@@ -18,7 +18,7 @@ curve of one run).
 Usage:  python benchmarks/free_tuning.py [--agents 8] [--phase1 1000] [--phase2 1000]
         [--placements 12] [--key 11] [--eval-key 999] [--push-reward pose|centre]
         [--heads 0,1,2] [--checkpoints 1000] [--set FIELD=VALUE] [--hand | --no-hand]
-        [--hand-scale METRES] [--actor-hidden N] [--tag NAME]
+        [--hand-scale METRES] [--actor-hidden N] [--critic-hidden N] [--var] [--tag NAME]
 Prints the median agent's success per action (min-max over agents), by slot, and the share of
 episodes that moved a wrong object, at each checkpoint and at the end; writes
 results/benchmarks/free_tuning_<tag>.json (tag: the push reward unless given).
@@ -74,6 +74,37 @@ def _report(table: dict, wrong: dict, episode: int) -> None:
               f"object moved in {wrong[a]:.0%} of the episodes", flush=True)
 
 
+#: where touch's episodes are pooled by the target's place: x (toward / away from the robot)
+#: and y (left to right) split at these values (metres; the region: placement.REACH_X/_Y)
+WHERE_X = (-0.235,)
+WHERE_Y = (0.16, 0.23)
+
+
+def _touch_where(out: dict, xy: np.ndarray) -> dict:
+    """Touch's success and failures pooled over agents by where the target stands (cells of
+    :data:`WHERE_X` x :data:`WHERE_Y`, named ``near|far y<=..``): episodes, success, never
+    touched in the second half, target moved >= 3 cm."""
+    act = np.asarray(out["action"])
+    touch = act == tasks.FREE.action_names.index("touch")
+    ok = np.asarray(out["success"])[..., touch].reshape(-1, int(touch.sum()))
+    late = np.asarray(out["touched_late"])[..., touch].reshape(ok.shape) > 0
+    moved = np.asarray(out["target_moved"])[..., touch].reshape(ok.shape) >= tasks.TOUCH_MOVED
+    ix = np.digitize(xy[touch, 0], WHERE_X)  # 0: x below the split (far from the robot)
+    iy = np.digitize(xy[touch, 1], WHERE_Y)
+    ys = (placement.REACH_Y[0], *WHERE_Y, placement.REACH_Y[1])
+    cells = {}
+    for i, xname in enumerate(("far", "near")):
+        for j in range(len(ys) - 1):
+            m = (ix == i) & (iy == j)
+            if not m.any():
+                continue
+            cells[f"{xname} y {ys[j]:.2f}-{ys[j + 1]:.2f}"] = {
+                "episodes": int(m.sum() * ok.shape[0]), "success": float(ok[:, m].mean()),
+                "never_touched_late": float((~late[:, m]).mean()),
+                "target_moved_3cm": float(moved[:, m].mean())}
+    return cells
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--agents", type=int, default=8)
@@ -98,6 +129,11 @@ def main(argv: list[str] | None = None) -> dict:
                       help="the actor does not see its palm (the 'free' task set)")
     ap.add_argument("--actor-hidden", type=int, default=None, metavar="N",
                     help="each actor's hidden units (shipped: beyond.FREE_LEARNER's)")
+    ap.add_argument("--critic-hidden", type=int, default=None, metavar="N",
+                    help="each critic's hidden units (shipped: beyond.FREE_LEARNER's)")
+    ap.add_argument("--var", action="store_true",
+                    help="CACLA+Var: repeat the actor's update by how large delta was "
+                    "(shipped: off)")
     ap.add_argument("--hand-scale", type=float, default=None, metavar="METRES",
                     help="the hand units' length scale (shipped: tasks.HAND_SCALE); with "
                     "the hand units only")
@@ -140,11 +176,14 @@ def main(argv: list[str] | None = None) -> dict:
         learner = dataclasses.replace(cfg.learner, task_set=task_set, heads=args.heads)
     except ValueError as e:
         ap.error(f"--heads: {e}")
-    if args.actor_hidden is not None:
-        try:
-            learner = dataclasses.replace(learner, actor_hidden=args.actor_hidden)
-        except ValueError as e:
-            ap.error(f"--actor-hidden: {e}")
+    for name in ("actor_hidden", "critic_hidden"):
+        if getattr(args, name) is not None:
+            try:
+                learner = dataclasses.replace(learner, **{name: getattr(args, name)})
+            except ValueError as e:
+                ap.error(f"--{name.replace('_', '-')}: {e}")
+    if args.var:
+        learner = dataclasses.replace(learner, var=True)
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task_set=task_set),
                               learner=learner)
     bad = [c for c in args.checkpoints if not 0 < c < cfg.episodes]
@@ -152,6 +191,9 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error(f"--checkpoints: must lie in 1..{cfg.episodes - 1}, got {bad}")
     env = Env(cfg.env)
     judge = beyond.make_success(env, jax.random.key(args.eval_key), args.placements)
+    batch = alx.free_tasks(jax.random.key(args.eval_key), args.placements)  # judge's tasks
+    target_xy = np.asarray(batch.placement)[np.arange(len(batch.position)),
+                                            np.asarray(batch.position), :2]
     curve: dict[str, dict] = {}
 
     def measure(episode: int, agents, _metrics) -> None:
@@ -167,11 +209,16 @@ def main(argv: list[str] | None = None) -> dict:
                  "target_moved_3cm": float(moved.mean())}
         curve[str(episode)] = {"by_action": table["by_action"], "spread": table["spread"],
                                "by_task": table["by_task"], "wrong_moved": wrong,
-                               "touch_failures": fails}
+                               "touch_failures": fails,
+                               "touch_where": _touch_where(out, target_xy)}
         _report(table, wrong, episode)
         print(f"episode {episode} touch episodes (pooled): never touched in the second half "
               f"{fails['never_touched_late']:.0%}, target moved >= 3 cm "
               f"{fails['target_moved_3cm']:.0%}", flush=True)
+        for cell, c in curve[str(episode)]["touch_where"].items():
+            print(f"episode {episode} touch, target {cell}: {c['success']:.0%} of "
+                  f"{c['episodes']} (never touched late {c['never_touched_late']:.0%}, moved "
+                  f">= 3 cm {c['target_moved_3cm']:.0%})", flush=True)
 
     t = time.perf_counter()
     al.train_in_chunks(cfg, jax.random.split(jax.random.key(args.key), args.agents), hp,
@@ -186,6 +233,8 @@ def main(argv: list[str] | None = None) -> dict:
            "touch_depth_m": float(touch_map["depth"]),
            # 0: solved node by node, as shipped; > 0: make_touch_map.py --smooth's weight
            "touch_smooth_weight": float(touch_map.get("smooth_weight", 0.0)),
+           # > 0: make_touch_map.py --reach-shift's most (metres across the top face)
+           "touch_reach_shift": float(touch_map.get("reach_shift", 0.0)),
            "libraries": library_versions()}
     print(f"training and judging {train_s:.0f} s")
     out_dir = pathlib.Path("results/benchmarks")

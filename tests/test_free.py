@@ -92,6 +92,35 @@ def test_ik_solve_near_reaches_the_target_or_stays_at_its_prior_by_weight():
     assert err > 5e-3
 
 
+def test_touch_map_shift_moves_only_unreached_points_and_only_where_it_helps():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "make_touch_map", scene.ASSETS / "make_touch_map.py")
+    mk = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mk)
+    m = free.touch_map()
+    poses, err = m["joints"].astype(float), np.zeros(m["reach_error"].shape)
+    far, near_left = (1, 21), (1, 1)  # (x -0.27, y 0.29): out of reach; (x -0.27, y 0.09): too low
+    for ij in (far, near_left):
+        err[ij] = m["reach_error"][ij]
+    assert err[far] > 0.03 and err[near_left] > 0.01
+    off = mk.offset("touch")
+    new, new_err, offs = mk.shift_unreached(poses, err, off, most=0.02)
+    shift = np.linalg.norm(offs[..., :2] - off[:2], axis=-1)
+    # the far-right point moved across the top face, no further than allowed, and is reached
+    assert 0 < shift[far] <= 0.02 + 1e-9 and new_err[far] <= mk.SHIFT_FROM
+    point = np.array([m["x"][far[0]], m["y"][far[1]], scene.TABLE_Z + scene.OBJECT_HALF])
+    palm = ik.palm_position(new[far])
+    assert np.linalg.norm(palm - (point + offs[far])) == pytest.approx(new_err[far], abs=1e-6)
+    # the near-left node cannot get down to the top face: no shift halves its error, it stays
+    assert shift[near_left] == 0 and np.array_equal(new[near_left], poses[near_left])
+    # every other node is untouched
+    rest = np.ones(err.shape, bool)
+    rest[far] = rest[near_left] = False
+    assert np.array_equal(new[rest], poses[rest]) and np.all(shift[rest] == 0)
+
+
 def test_the_free_actor_is_told_the_targets_coordinates(env):
     n = tasks.POPULATION_GRID[0] * tasks.POPULATION_GRID[1]
     assert tasks.FREE.target_obs == "population"

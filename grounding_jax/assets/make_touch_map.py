@@ -27,7 +27,10 @@ by up to 1.6 cm, the far-right corner by up to 7 cm) the pose is the nearest the
 ``reach_error`` says by how much it misses.
 
 ``--smooth W`` re-solves each touch node near a cubic fit of the map (``smooth_map``): a
-smoother map that reaches its points better, tried and not shipped.
+smoother map that reaches its points better, tried and not shipped. ``--reach-shift R`` moves
+an unreached node's point up to R across the top face to where the palm reaches it
+(``shift_unreached``; the npz's ``shift`` says how far): tried and not shipped either (the
+palm pressing off the top's centre slid off its edge).
 
 Run once, from the repository root: ``python assets/make_touch_map.py [--action push]``
 (about 30 s each).
@@ -59,6 +62,12 @@ ITERS = 150  # IK iterations per start pose
 SMOOTH_WEIGHT = 0.0
 #: ... of this total degree in (x, y).
 SMOOTH_DEGREE = 3
+#: Where the touching point is out of reach (``reach_error`` above ``SHIFT_FROM``), move it
+#: across the top face, at most this far (metres; ``shift_unreached``; 0: off) ...
+REACH_SHIFT = 0.0
+SHIFT_FROM = 0.003
+#: ... in steps of this, toward where the palm got.
+SHIFT_STEP = 0.0025
 
 
 def offset(action: str, depth: float = TOUCH_DEPTH) -> np.ndarray:
@@ -127,6 +136,43 @@ def smooth_map(poses: np.ndarray, off: np.ndarray, weight: float = SMOOTH_WEIGHT
     return out, err
 
 
+def shift_unreached(poses: np.ndarray, err: np.ndarray, off: np.ndarray,
+                    most: float = REACH_SHIFT) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the arm cannot bring the palm site to a node's touching point, press on another
+    point of the target's top face, at most ``most`` across from the centre: the nearest one
+    (in steps of ``SHIFT_STEP``, toward where the palm got, +-30 degrees) that the palm
+    reaches within ``SHIFT_FROM``, else the one it gets nearest to -- if that halves the
+    error; otherwise the node keeps its point (where the palm cannot get down to the top
+    face, no shift across it helps).
+
+    Returns:
+        (poses ``[nx, ny, 4]``, reach errors ``[nx, ny]`` to the node's point, the per-node
+        offsets ``[nx, ny, 3]`` from the object's centre).
+    """
+    pm = placement.pointing_map()
+    xs, ys = pm["x"], pm["y"]
+    z = scene.TABLE_Z + scene.OBJECT_HALF
+    poses, err = poses.copy(), err.copy()
+    offs = np.broadcast_to(off, poses.shape[:2] + (3,)).copy()
+    radii = np.arange(SHIFT_STEP, most + 1e-9, SHIFT_STEP)
+    for i, j in zip(*np.nonzero(err > SHIFT_FROM), strict=True):
+        point = np.array([xs[i], ys[j], z]) + offs[i, j]
+        got = ik.palm_position(poses[i, j])[:2] - point[:2]
+        heading = np.arctan2(got[1], got[0])
+        best = (err[i, j], poses[i, j], offs[i, j])
+        for r in radii:
+            for turn in np.radians((0.0, -30.0, 30.0)):
+                shift = r * np.array([np.cos(heading + turn), np.sin(heading + turn), 0.0])
+                q, e = ik.solve(point + shift, poses[i, j], iters=ITERS)
+                if e < best[0]:
+                    best = (e, q, offs[i, j] + shift)
+            if best[0] <= SHIFT_FROM:
+                break
+        if best[0] <= max(SHIFT_FROM, err[i, j] / 2):
+            err[i, j], poses[i, j], offs[i, j] = best
+    return poses, err, offs
+
+
 def jumps(poses: np.ndarray) -> np.ndarray:
     """Scaled-joint L1 change between grid neighbours (1 cm apart), all pairs."""
     s = ik.scaled(poses)
@@ -135,7 +181,8 @@ def jumps(poses: np.ndarray) -> np.ndarray:
 
 
 def main(action: str = "touch", depth: float = TOUCH_DEPTH,
-         out: pathlib.Path | None = None, smooth: float = SMOOTH_WEIGHT) -> None:
+         out: pathlib.Path | None = None, smooth: float = SMOOTH_WEIGHT,
+         reach_shift: float = REACH_SHIFT) -> None:
     pm = placement.pointing_map()
     xs, ys = pm["x"], pm["y"]
     off = offset(action, depth)
@@ -147,6 +194,13 @@ def main(action: str = "touch", depth: float = TOUCH_DEPTH,
         print(f"smoothed (weight {smooth}): neighbour jumps (scaled L1 per cm) median "
               f"{np.median(j0):.3f} -> {np.median(j1):.3f}, 95th {np.percentile(j0, 95):.3f} "
               f"-> {np.percentile(j1, 95):.3f}, max {j0.max():.2f} -> {j1.max():.2f}")
+    shift = np.zeros(poses.shape[:2])
+    if action == "touch" and reach_shift > 0:
+        poses, err, offs = shift_unreached(poses, err, off, reach_shift)
+        shift = np.linalg.norm(offs[..., :2] - off[:2], axis=-1)
+        print(f"shifted {np.sum(shift > 0)} unreached nodes' points across the top face "
+              f"(at most {1000 * reach_shift:.1f} mm; median shift "
+              f"{1000 * np.median(shift[shift > 0]) if np.any(shift > 0) else 0:.1f} mm)")
     in_x = (xs >= placement.REACH_X[0] - 1e-6) & (xs <= placement.REACH_X[1] + 1e-6)
     in_y = (ys >= placement.REACH_Y[0] - 1e-6) & (ys <= placement.REACH_Y[1] + 1e-6)
     inside = in_x[:, None] & in_y[None]
@@ -155,7 +209,8 @@ def main(action: str = "touch", depth: float = TOUCH_DEPTH,
           f"nodes within 5 mm, 95th {1000 * np.percentile(err[inside], 95):.0f} mm, max "
           f"{1000 * err[inside].max():.0f} mm")
     out = OUT[action] if out is None else out
-    extra = ({"depth": np.float32(depth), "smooth_weight": np.float32(smooth)}
+    extra = ({"depth": np.float32(depth), "smooth_weight": np.float32(smooth),
+              "reach_shift": np.float32(reach_shift), "shift": shift.astype(np.float32)}
              if action == "touch"
              else {"offset": off.astype(np.float32)})
     np.savez_compressed(out, x=xs.astype(np.float32), y=ys.astype(np.float32),
@@ -172,6 +227,9 @@ if __name__ == "__main__":
     ap.add_argument("--smooth", type=float, default=SMOOTH_WEIGHT,
                     help=f"touch: pull toward a smooth fit of the map (default {SMOOTH_WEIGHT};"
                          " 0: off)")
+    ap.add_argument("--reach-shift", type=float, default=REACH_SHIFT,
+                    help="touch: metres the point may move across the top face where the "
+                    f"palm cannot reach it (default {REACH_SHIFT}; 0: off)")
     ap.add_argument("--out", type=pathlib.Path, default=None,
                     help="default grounding_jax/assets/<action>_map.npz")
     args = ap.parse_args()
@@ -180,4 +238,7 @@ if __name__ == "__main__":
                  f"height), got {args.depth}")
     if not (np.isfinite(args.smooth) and args.smooth >= 0):
         ap.error(f"--smooth: must be a finite number >= 0, got {args.smooth}")
-    main(args.action, args.depth, args.out, args.smooth)
+    if not 0.0 <= args.reach_shift <= scene.OBJECT_HALF:
+        ap.error(f"--reach-shift: must lie in [0, {scene.OBJECT_HALF}] m (the top face's "
+                 f"half width), got {args.reach_shift}")
+    main(args.action, args.depth, args.out, args.smooth, args.reach_shift)
