@@ -17,8 +17,8 @@ acts with a smaller action scale.
 
 ``--action push`` sends the arm instead to the pushing pose of ``placement.push_pose`` (the
 map the free family's push reward reaches for: the palm at the target's near face), at the
-free family's action scale (0.2), gains 3 and 1, judged by push's criterion (the target moved
->= 2 cm, no wrong object moved).
+free family's action scale (``beyond.FREE_TUNED``; 0.2 for the README's table), gains 3 and
+1, judged by push's criterion (the target moved >= 2 cm, no wrong object moved).
 
 Usage:  python benchmarks/scripted_touch.py [--placements 12] [--key 999] [--action push]
 Writes results/benchmarks/scripted_<action>.json and prints a Markdown table.

@@ -156,6 +156,19 @@ def test_every_sweep_file_validates(path):
     assert len(spec.points()) >= 5
 
 
+def test_the_free_tuning_sweep_starts_from_the_shipped_settings():
+    # its comment promises: each field's first value (and every fixed param) is beyond's
+    from grounding_jax import beyond
+
+    spec = sweep.load_spec(ROOT / "sweeps" / "free_al_tuning.toml")
+    shipped = {**beyond.FREE_TUNED, "actor_hidden": beyond.FREE_LEARNER.actor_hidden}
+    base = {**spec.params, **{k: v[0] for k, v in spec.grid.items()}}
+    for name, value in base.items():
+        if name in shipped:
+            assert value == pytest.approx(shipped[name]), name
+    assert set(beyond.FREE_TUNED) - {"touch_bonus"} <= set(base)
+
+
 def test_the_six_paper_sweeps_are_there():
     assert {p.stem for p in SWEEPS} == {"fig6_tl_hidden", "fig7_tl_replication",
                                         "fig8a_critic_lr", "fig8b_critic_hidden",
