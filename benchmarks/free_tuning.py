@@ -80,17 +80,15 @@ WHERE_X = (-0.235,)
 WHERE_Y = (0.16, 0.23)
 
 
-def _touch_where(out: dict, xy: np.ndarray) -> dict:
+def _touch_where(ok: np.ndarray, late: np.ndarray, moved: np.ndarray, xy: np.ndarray) -> dict:
     """Touch's success and failures pooled over agents by where the target stands (cells of
-    :data:`WHERE_X` x :data:`WHERE_Y`, named ``near|far y<=..``): episodes, success, never
-    touched in the second half, target moved >= 3 cm."""
-    act = np.asarray(out["action"])
-    touch = act == tasks.FREE.action_names.index("touch")
-    ok = np.asarray(out["success"])[..., touch].reshape(-1, int(touch.sum()))
-    late = np.asarray(out["touched_late"])[..., touch].reshape(ok.shape) > 0
-    moved = np.asarray(out["target_moved"])[..., touch].reshape(ok.shape) >= tasks.TOUCH_MOVED
-    ix = np.digitize(xy[touch, 0], WHERE_X)  # 0: x below the split (far from the robot)
-    iy = np.digitize(xy[touch, 1], WHERE_Y)
+    :data:`WHERE_X` x :data:`WHERE_Y`, named ``near|far y lo-hi``): episodes, success, never
+    touched in the second half, target moved >= 3 cm. ``ok``, ``late`` (touched in the second
+    half) and ``moved`` (>= 3 cm) are touch's episodes, ``[..., touch tasks]``; ``xy`` is
+    their targets' coordinates ``[touch tasks, 2]``."""
+    ok, late, moved = (np.reshape(a, (-1, len(xy))) for a in (ok, late, moved))
+    ix = np.digitize(xy[:, 0], WHERE_X)  # 0: x below the split (far from the robot)
+    iy = np.digitize(xy[:, 1], WHERE_Y)
     ys = (placement.REACH_Y[0], *WHERE_Y, placement.REACH_Y[1])
     cells = {}
     for i, xname in enumerate(("far", "near")):
@@ -203,14 +201,16 @@ def main(argv: list[str] | None = None) -> dict:
         wrong = {a: float(np.asarray(out["wrong_moved"])[..., act == i].mean())
                  for i, a in enumerate(tasks.FREE.action_names)}
         touch = act == tasks.FREE.action_names.index("touch")
-        late = np.asarray(out["touched_late"])[..., touch]
+        late = np.asarray(out["touched_late"])[..., touch] > 0
         moved = np.asarray(out["target_moved"])[..., touch] >= tasks.TOUCH_MOVED
-        fails = {"never_touched_late": float((late == 0).mean()),
+        fails = {"never_touched_late": float((~late).mean()),
                  "target_moved_3cm": float(moved.mean())}
         curve[str(episode)] = {"by_action": table["by_action"], "spread": table["spread"],
                                "by_task": table["by_task"], "wrong_moved": wrong,
                                "touch_failures": fails,
-                               "touch_where": _touch_where(out, target_xy)}
+                               "touch_where": _touch_where(
+                                   np.asarray(out["success"])[..., touch] > 0, late, moved,
+                                   target_xy[touch])}
         _report(table, wrong, episode)
         print(f"episode {episode} touch episodes (pooled): never touched in the second half "
               f"{fails['never_touched_late']:.0%}, target moved >= 3 cm "
