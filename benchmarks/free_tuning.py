@@ -188,8 +188,9 @@ def main(argv: list[str] | None = None) -> dict:
     if bad:
         ap.error(f"--checkpoints: must lie in 1..{cfg.episodes - 1}, got {bad}")
     env = Env(cfg.env)
-    judge = beyond.make_success(env, jax.random.key(args.eval_key), args.placements)
-    batch = alx.free_tasks(jax.random.key(args.eval_key), args.placements)  # judge's tasks
+    # beyond.make_success's judge, with its tasks kept here for where the targets stand
+    batch = alx.free_tasks(jax.random.key(args.eval_key), args.placements)
+    judge = alx.make_success(env, batch=batch)
     target_xy = np.asarray(batch.placement)[np.arange(len(batch.position)),
                                             np.asarray(batch.position), :2]
     curve: dict[str, dict] = {}

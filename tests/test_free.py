@@ -110,9 +110,9 @@ def test_touch_map_shift_moves_only_unreached_points_and_only_where_it_helps():
     shift = np.linalg.norm(offs[..., :2] - off[:2], axis=-1)
     # the far-right point moved across the top face, no further than allowed, and is reached
     assert 0 < shift[far] <= 0.02 + 1e-9 and new_err[far] <= mk.SHIFT_FROM
-    point = np.array([m["x"][far[0]], m["y"][far[1]], scene.TABLE_Z + scene.OBJECT_HALF])
-    palm = ik.palm_position(new[far])
-    assert np.linalg.norm(palm - (point + offs[far])) == pytest.approx(new_err[far], abs=1e-6)
+    pressed = mk.centres()[far] + offs[far]
+    assert np.linalg.norm(ik.palm_position(new[far]) - pressed) == pytest.approx(new_err[far],
+                                                                                 abs=1e-6)
     # the near-left node cannot get down to the top face: no shift halves its error, it stays
     assert shift[near_left] == 0 and np.array_equal(new[near_left], poses[near_left])
     # every other node is untouched

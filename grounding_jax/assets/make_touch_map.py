@@ -77,14 +77,21 @@ def offset(action: str, depth: float = TOUCH_DEPTH) -> np.ndarray:
     return np.array([PUSH_BEHIND, 0.0, PUSH_RISE])
 
 
+def centres() -> np.ndarray:
+    """The centre of an object standing at each node of the pointing map's grid, ``[nx, ny,
+    3]`` (metres)."""
+    pm = placement.pointing_map()
+    gx, gy = np.meshgrid(pm["x"].astype(np.float64), pm["y"].astype(np.float64), indexing="ij")
+    return np.stack([gx, gy, np.full(gx.shape, scene.TABLE_Z + scene.OBJECT_HALF)], axis=-1)
+
+
 def solve_map(off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IK poses ``[nx, ny, 4]`` (radians) putting the palm site at each node's object centre
     plus ``off`` (``[3]``, or ``[nx, ny, 3]``: one per node), and their reach errors
     ``[nx, ny]`` (metres)."""
-    pm = placement.pointing_map()
-    xs, ys, pointing = pm["x"], pm["y"], pm["joints"].astype(np.float64)
-    z = scene.TABLE_Z + scene.OBJECT_HALF
-    nx, ny = len(xs), len(ys)
+    pointing = placement.pointing_map()["joints"].astype(np.float64)
+    points = centres() + off
+    nx, ny = points.shape[:2]
     poses = np.zeros((nx, ny, 4))
     err = np.full((nx, ny), np.inf)
     solved = np.zeros((nx, ny), bool)
@@ -95,9 +102,8 @@ def solve_map(off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         near = [(i + a, j + b) for a in (-1, 0, 1) for b in (-1, 0, 1)
                 if 0 <= i + a < nx and 0 <= j + b < ny and solved[i + a, j + b]]
         best = None
-        point = np.array([xs[i], ys[j], z]) + (off[i, j] if off.ndim == 3 else off)
         for start in [pointing[i, j]] + [poses[n] for n in near]:
-            q, e = ik.solve(point, start, iters=ITERS)
+            q, e = ik.solve(points[i, j], start, iters=ITERS)
             jump = (np.mean([np.abs(ik.scaled(q) - ik.scaled(poses[n])).sum() for n in near])
                     if near else 0.0)
             rank = (round(e, 3), jump)
@@ -128,11 +134,10 @@ def smooth_map(poses: np.ndarray, off: np.ndarray, weight: float = SMOOTH_WEIGHT
                      axis=-1).reshape(-1, (degree + 1) * (degree + 2) // 2)
     coef, *_ = np.linalg.lstsq(feats, poses.reshape(-1, 4), rcond=None)
     fit = (feats @ coef).reshape(poses.shape)
-    z = scene.TABLE_Z + scene.OBJECT_HALF
+    points = centres() + off
     out, err = np.zeros_like(poses), np.zeros(poses.shape[:2])
     for i, j in np.ndindex(*poses.shape[:2]):
-        target = np.array([xs[i], ys[j], z]) + off
-        out[i, j], err[i, j] = ik.solve_near(target, fit[i, j], weight)
+        out[i, j], err[i, j] = ik.solve_near(points[i, j], fit[i, j], weight)
     return out, err
 
 
@@ -149,14 +154,12 @@ def shift_unreached(poses: np.ndarray, err: np.ndarray, off: np.ndarray,
         (poses ``[nx, ny, 4]``, reach errors ``[nx, ny]`` to the node's point, the per-node
         offsets ``[nx, ny, 3]`` from the object's centre).
     """
-    pm = placement.pointing_map()
-    xs, ys = pm["x"], pm["y"]
-    z = scene.TABLE_Z + scene.OBJECT_HALF
+    centre = centres()
     poses, err = poses.copy(), err.copy()
     offs = np.broadcast_to(off, poses.shape[:2] + (3,)).copy()
     radii = np.arange(SHIFT_STEP, most + 1e-9, SHIFT_STEP)
     for i, j in zip(*np.nonzero(err > SHIFT_FROM), strict=True):
-        point = np.array([xs[i], ys[j], z]) + offs[i, j]
+        point = centre[i, j] + offs[i, j]
         got = ik.palm_position(poses[i, j])[:2] - point[:2]
         heading = np.arctan2(got[1], got[0])
         best = (err[i, j], poses[i, j], offs[i, j])
