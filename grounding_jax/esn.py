@@ -106,9 +106,15 @@ def run(esn: ESN, inputs: jax.Array, x0: jax.Array | None = None) -> jax.Array:
     if inputs.ndim != 2 or inputs.shape[1] != esn.w_in.shape[0]:
         raise ValueError(f"inputs: expected shape [T, {esn.w_in.shape[0]}], got {inputs.shape}")
     x0 = jnp.zeros(esn.w_res.shape[0], inputs.dtype) if x0 is None else x0
+    return _run(esn.w_in, esn.w_res, x0, inputs)
 
+
+@jax.jit
+def _run(w_in: jax.Array, w_res: jax.Array, x0: jax.Array, inputs: jax.Array) -> jax.Array:
+    # jitted at module level: an eager lax.scan builds (and loads) a new executable per call,
+    # which a robot naming thousands of episodes ran out of memory on
     def step(x, u):
-        x = u @ esn.w_in + x @ esn.w_res
+        x = u @ w_in + x @ w_res
         return x, x
 
     return jax.lax.scan(step, x0, inputs)[1]

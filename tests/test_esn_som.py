@@ -33,6 +33,17 @@ def test_run_under_scan_equals_a_python_loop(net):
         np.testing.assert_allclose(got[t], x, rtol=1e-4, atol=1e-4)
 
 
+def test_run_compiles_once_for_every_net_and_sequence_of_a_shape(net):
+    # eagerly, a scan compiled anew per call: a robot naming thousands of episodes ran out
+    # of memory
+    u = jax.random.normal(jax.random.key(3), (7, net.w_in.shape[0]))
+    esn.run(net, u)
+    size = esn._run._cache_size()
+    other = net.replace(w_res=net.w_res * 0.5)
+    np.testing.assert_allclose(esn.run(other, 2 * u)[0], 2 * u[0] @ net.w_in, rtol=1e-5)
+    assert esn._run._cache_size() == size
+
+
 @pytest.mark.parametrize("ridge", [0.0, 1e-9])
 def test_readout_recovers_a_known_linear_map(ridge):
     x = jax.random.normal(jax.random.key(3), (400, 50))
