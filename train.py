@@ -13,6 +13,7 @@ are saved to ``<out>/modules`` (load them with ``grounding_jax.load``).
     python train.py --resume             # continue the sweeps of an interrupted run
     python train.py --profile paper --only free-robot   # the free family's robot again, on
                                          # the continuous TL of the run already in --out
+    python train.py --profile paper --only beyond       # that TL trained again too
 """
 
 from __future__ import annotations
@@ -70,9 +71,10 @@ AL_SWEEPS = {
 }
 #: the parts ``--only`` re-runs, each with the settings it reads (which may differ from the
 #: whole run's; the other parts' settings may not)
-ONLY = {"free-robot": ("free_seeds", "free_phase1", "free_phase2", "free_placements",
-                       "free_eyes_placements", "moving_scenes", "free_an_scenes",
-                       "free_an_seeds")}
+_FREE_ROBOT = ("free_seeds", "free_phase1", "free_phase2", "free_placements",
+               "free_eyes_placements", "moving_scenes", "free_an_scenes", "free_an_seeds")
+ONLY = {"free-robot": _FREE_ROBOT,
+        "beyond": ("xy_seeds", "xy_scenes", "xy_hidden", "xy_steps", *_FREE_ROBOT)}
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2"}
 
@@ -118,7 +120,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="re-run one part of a run already in --out with the keys a whole run "
                          "gives it, keeping the rest (free-robot: the free family's actor, its "
                          "eyes, the moving target, the namer and the camera strip, on the saved "
-                         "continuous TL)")
+                         "continuous TL; beyond: the continuous TL trained again, then "
+                         "free-robot)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a profile setting (e.g. tl_epochs=50, tl_hidden=5,50)")
     args = ap.parse_args(argv)
@@ -300,8 +303,9 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
     free, agents = B.train(k_train, st["free_seeds"], st["free_phase1"], st["free_phase2"],
                            st["free_placements"], backend=backend,
                            checkpoints=((st["free_phase1"] + st["free_phase2"]) // 2,))
-    agent = jax.tree.map(lambda x: x[free["median_agent"]], agents)
-    modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent,
+    agent = jax.tree.map(lambda x: x[free["saved_agent"]], agents)
+    modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent, "agents": agents,
+               "saved_agent": free["saved_agent"],
                "al_config": B.FREE_LEARNER, "env_config": B.env_config(backend),
                "params": B.params()}
     # the whole robot: coordinates from the eye camera and the TL instead of the simulator
@@ -324,7 +328,8 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
         k_an, agent, xy_params, cfg, st["free_an_scenes"], st["free_an_seeds"])
     ba, eb, es = (free[k]["by_action"] for k in ("final", "eyes", "eyes_shape"))
     print(f"free  median agent on held-out placements: point {ba['point']:.2f} touch "
-          f"{ba['touch']:.2f} push {ba['push']:.2f}; through its eyes (TL), named by colour / "
+          f"{ba['touch']:.2f} push {ba['push']:.2f}; the saved agent through its eyes (TL), "
+          "named by colour / "
           f"by shape: point {eb['point']:.2f} / {es['point']:.2f} touch {eb['touch']:.2f} / "
           f"{es['touch']:.2f} push {eb['push']:.2f} / {es['push']:.2f}; named "
           f"{free['an']['test']['acc_mean']:.3f} of held-out scenes' sequences", flush=True)
@@ -362,53 +367,60 @@ def write_results(out: pathlib.Path, result: dict) -> None:
     atomic_write_text(out / "REPORT.md", report(result))
 
 
-def rerun_free_robot(out: pathlib.Path, args: argparse.Namespace, k_free, k_strip) -> int:
+def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) -> int:
     """``--only free-robot``: :func:`beyond_robot` and :func:`camera_strip` again with the keys
-    a whole run gives them, on the continuous TL saved in ``out/modules``; the modules are
-    saved again (the paper's unchanged, the free family's new) and metrics.json's free-robot
-    part, metrics.csv and REPORT.md are rewritten, the other parts' results kept."""
+    a whole run gives them, on the continuous TL saved in ``out/modules``; ``--only beyond``:
+    the continuous TL trained again first (:func:`beyond`). The modules are saved again (the
+    paper's unchanged, the free family's new) and metrics.json's part, metrics.csv and
+    REPORT.md are rewritten, the other parts' results kept."""
     import grounding_jax as gj
     from grounding_jax import trained
     from grounding_jax._io import library_versions
 
+    part = args.only
     metrics, modules_dir = out / "metrics.json", out / "modules"
     if not metrics.is_file() or not modules_dir.is_dir():
-        print(f"--only free-robot: needs a whole run in {out} (metrics.json and modules/); "
+        print(f"--only {part}: needs a whole run in {out} (metrics.json and modules/); "
               f"run train.py --profile {args.profile} first", file=sys.stderr)
         return 2
     data = json.loads(metrics.read_text())
     if (data["profile"], data["seed"], data["backend"]) != (args.profile, args.seed,
                                                             args.backend):
-        print(f"--only free-robot: {metrics} is of profile {data['profile']!r}, seed "
+        print(f"--only {part}: {metrics} is of profile {data['profile']!r}, seed "
               f"{data['seed']}, backend {data['backend']!r}; asked for {args.profile!r}, "
               f"{args.seed}, {args.backend!r}", file=sys.stderr)
         return 2
-    own = ONLY["free-robot"]
+    own = ONLY[part]
     changed = sorted(k for k in args.settings
                      if k not in own and data["settings"].get(k) != args.settings[k])
     if changed:
-        print(f"--only free-robot: settings of the parts it keeps differ from the run in "
+        print(f"--only {part}: settings of the parts it keeps differ from the run in "
               f"{out}: {changed}; only its own may change: {list(own)}", file=sys.stderr)
         return 2
     robot = gj.load(modules_dir)
-    if robot.free is None:
-        print(f"--only free-robot: {modules_dir} holds no continuous TL", file=sys.stderr)
+    if robot.free is None and part == "free-robot":
+        print(f"--only {part}: {modules_dir} holds no continuous TL", file=sys.stderr)
         return 2
     t = time.perf_counter()
-    free, modules = beyond_robot(k_free, out / "beyond", args.settings, args.backend,
-                                 robot.free.xy_params, robot.free.xy_config)
+    if part == "beyond":
+        extra, modules = beyond(k_xy, k_free, out / "beyond", args.settings, args.backend)
+        data["beyond"]["tl_xy"], free = extra["tl_xy"], extra["free"]
+    else:
+        free, modules = beyond_robot(k_free, out / "beyond", args.settings, args.backend,
+                                     robot.free.xy_params, robot.free.xy_config)
     trained.save(modules_dir, robot.tl.params, robot.tl.hyper, robot.al.agent,
                  robot.al.config, robot.an.net, robot.an.config, robot.env_config,
                  extra=robot.config.get("extra"), free_modules=modules)
     strip = camera_strip(out / "beyond", k_strip)
     data["beyond"]["free"], data["beyond"]["strip"] = free, strip
     data["settings"].update({k: args.settings[k] for k in own})
-    data["wall_s"]["free_robot_rerun"] = time.perf_counter() - t
+    wall = f"{part.replace('-', '_')}_rerun"
+    data["wall_s"][wall] = time.perf_counter() - t
     data["libraries"] = library_versions()
-    data["reruns"] = sorted({*data.get("reruns", []), "free-robot"})
+    data["reruns"] = sorted({*data.get("reruns", []), part})
     write_results(out, data)
-    print(f"rewrote the free robot's part of {out}: metrics.json, metrics.csv, REPORT.md, "
-          f"modules/ ({data['wall_s']['free_robot_rerun']:.1f} s)")
+    print(f"rewrote the {part} part of {out}: metrics.json, metrics.csv, REPORT.md, "
+          f"modules/ ({data['wall_s'][wall]:.1f} s)")
     return 0
 
 
@@ -437,8 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     # the one split (split is prefix-stable: a part added at the end leaves the others' keys)
     k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip = jax.random.split(
         jax.random.key(args.seed), 8)
-    if args.only == "free-robot":
-        return rerun_free_robot(out, args, k_free, k_strip)
+    if args.only:
+        return rerun(out, args, k_xy, k_free, k_strip)
     out.mkdir(parents=True, exist_ok=True)
     wall = {}
     t = time.perf_counter()

@@ -286,17 +286,30 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
         lines.append(f"| {a} | >= {_pct(goals[a])} | "
                      + " | ".join(_rate_cell(free["success"][e], a) for e in stops)
                      + f" | {met} |")
+    # the agent the robot acts with: chosen on validation placements (before they existed,
+    # the median one)
+    saved = free.get("saved_agent", free["median_agent"])
+    who = "The saved agent" if "saved_agent" in free else "The median agent"
+    if "saved_agent" in free:
+        per = free["final"]["per_agent_by_action"]
+        lines += [
+            "", f"**The saved agent** (the one `load` gives): agent {saved}, chosen on "
+            f"{free['eval_placements']} validation placements x 3 slots per action (another "
+            f"draw than the held-out ones above) as {free['selection']}. On the held-out "
+            "placements: " + ", ".join(f"{a} {_pct(per[a][saved])}"
+                                       for a in ("point", "touch", "push"))
+            + f" (the median agent by overall rate: agent {free['median_agent']})."]
     eyes = free.get("eyes")
     if eyes:
         lines += [
-            "", f"**Through its eyes.** The median agent again, on {eyes['placements']} other "
+            "", f"**Through its eyes.** {who} again, on {eyes['placements']} other "
             "held-out placements, told the coordinates the continuous TL reads from an "
             "eye-camera image of the scene (the target named by its colour; TL error on these: "
             f"median {eyes['tl_error_cm_median']:.2f} cm, 95th percentile "
             f"{eyes['tl_error_cm_p95']:.2f} cm): point {_pct(eyes['by_action']['point'])}, "
             f"touch {_pct(eyes['by_action']['touch'])}, push {_pct(eyes['by_action']['push'])} "
             "(the same agent told by the simulator: "
-            + ", ".join(f"{a} {_pct(free['final']['per_agent_by_action'][a][free['median_agent']])}"
+            + ", ".join(f"{a} {_pct(free['final']['per_agent_by_action'][a][saved])}"
                         for a in ("point", "touch", "push")) + ")."]
     shape = free.get("eyes_shape")
     if shape:  # the same placements, the target named by its shape (the TL's error tail)
@@ -313,7 +326,8 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
             "", "### A moving target", "",
             f"The target slides right (+y) at a constant speed from the region's left edge to "
             f"its right edge (20-22 cm), its neighbours parked out of reach; {mv['scenes']} "
-            f"scenes, {mv['steps']} steps ({mv['steps'] * mv['dt_s']:.0f} s), the median agent. "
+            f"scenes, {mv['steps']} steps ({mv['steps'] * mv['dt_s']:.0f} s), "
+            f"{who.lower()}. "
             "*Tracking*: told the target's current coordinates every step (from the simulator); "
             "*start only*: told where it started (the paper's setting). Palm-target distance to "
             "the target's current point, mean over the episode's second half (median over "
@@ -330,7 +344,8 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
     if namer:
         lines += [
             "", "### Naming what it did", "",
-            f"An ESN (the paper's: 50 units) reads the median agent's hidden layer and the "
+            f"An ESN of {namer.get('n_res', 50)} units (the paper's 50 served 40 + 50 inputs; "
+            f"here the continuous TL adds 200) reads {who.lower()}'s hidden layer and the "
             f"continuous TL's hidden layer for the scene and the word, and names action and "
             f"target: {namer['sequences']} sequences ({namer['scenes']} rendered random scenes x "
             f"6 words x 3 actions, 100 steps), {namer['seeds']} splits 2/3 : 1/3 by scene, "

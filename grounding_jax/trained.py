@@ -121,7 +121,9 @@ class TrainedAN:
 class TrainedFree:
     """The free family's modules: the continuous TL, an actor told the target's (x, y), and
     (when trained) a namer over the two's hidden layers. ``params``: the env parameters the
-    actor was trained with (its action scale), which it acts with."""
+    actor was trained with (its action scale), which it acts with. ``agents``: every agent
+    trained beside it (stacked, when saved), ``saved_agent`` the index of ``al``'s among them
+    (see :meth:`Robot.with_free_agent`)."""
 
     xy_params: tl_xy.XYParams
     xy_config: tl_xy.XYConfig
@@ -129,6 +131,13 @@ class TrainedFree:
     env_config: EnvConfig
     an: TrainedAN | None = None
     params: EnvParams = DEFAULT_PARAMS
+    agents: cacla.Agent | None = None
+    saved_agent: int | None = None
+
+    @property
+    def n_agents(self) -> int:
+        """How many trained agents ``agents`` holds (0 when none were saved)."""
+        return 0 if self.agents is None else int(jax.tree.leaves(self.agents)[0].shape[0])
 
     def _inputs(self, rgb: np.ndarray, layout: int, word: str) -> tuple[jax.Array, jax.Array]:
         w = tl_data.word_index(word)
@@ -159,6 +168,26 @@ class Robot:
     # perform's compiled episode, one per step count (filled on first use)
     _performers: dict[Any, Callable] = dataclasses.field(
         default_factory=dict, init=False, repr=False, compare=False)
+
+    def with_free_agent(self, i: int) -> Robot:
+        """This robot acting with the free family's trained agent ``i`` (of
+        ``free.agents``: all that train.py trained; by default the robot acts with
+        ``free.saved_agent``). The compiled episodes are shared: the agent is an argument.
+
+        Raises:
+            ValueError: no free-family agents saved, or ``i`` out of range.
+        """
+        n = 0 if self.free is None else self.free.n_agents
+        if n == 0:
+            raise ValueError("i: these modules hold no saved free-family agents (train.py "
+                             "saves them beside the robot's own)")
+        if isinstance(i, bool) or not isinstance(i, int | np.integer) or not 0 <= int(i) < n:
+            raise ValueError(f"i: agent index {i!r} out of range; accepted: 0..{n - 1}")
+        agent = jax.tree.map(lambda x: x[int(i)], self.free.agents)
+        free = dataclasses.replace(self.free, al=TrainedAL(agent, self.free.al.config))
+        robot = dataclasses.replace(self, free=free)
+        robot._performers.update(self._performers)
+        return robot
 
     def _performer(self, steps: int) -> Callable:
         if steps not in self._performers:
@@ -277,6 +306,11 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
             EnvParams(**f.get("params", {})).validate()
             if "an" in f:
                 esn.ESNConfig(**f["an"])
+            if "n_agents" in f:
+                n, i = f["n_agents"], f["saved_agent"]
+                if not (type(n) is int and n >= 1 and type(i) is int and 0 <= i < n):
+                    raise ValueError(f"free: n_agents must be an integer >= 1 and saved_agent "
+                                     f"one of 0..n_agents - 1, got {n!r} and {i!r}")
         t = config["tl"]
         tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
         # input scales: 1 (the paper's) in configs written before they existed
@@ -300,6 +334,10 @@ def _like(config: dict):
         like["free"] = {
             "xy": jax.eval_shape(lambda: tl_xy.init(k, tl_xy.XYConfig(**f["xy"]))),
             "al": jax.eval_shape(lambda: cacla.init(k, cacla.CaclaConfig(**f["al"])))}
+        if "n_agents" in f:
+            like["free"]["agents"] = jax.eval_shape(lambda: jax.vmap(
+                lambda kk: cacla.init(kk, cacla.CaclaConfig(**f["al"])))(
+                    jax.random.split(k, f["n_agents"])))
         if "an" in f:
             like["free"]["an"] = _esn_like(esn.ESNConfig(**f["an"]))
     return like | {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
@@ -331,8 +369,9 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         free_modules: the free family's robot, optional: ``{"xy_params", "xy_config"
             (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}``,
             ``"params"`` (the :class:`EnvParams` it was trained with; default
-            ``EnvParams()``) and, when a namer was trained for it, ``"net"`` and
-            ``"esn_config"``.
+            ``EnvParams()``), optionally ``"agents"`` (every agent trained, stacked) with
+            ``"saved_agent"`` (the index of ``"agent"`` among them) and, when a namer was
+            trained for it, ``"net"`` and ``"esn_config"``.
     """
     directory = pathlib.Path(directory)
     config = {
@@ -350,6 +389,11 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
                           "env": dataclasses.asdict(free_modules["env_config"]),
                           "params": _params_json(free_modules.get("params", DEFAULT_PARAMS))}
         tree["free"] = {"xy": free_modules["xy_params"], "al": free_modules["agent"]}
+        if free_modules.get("agents") is not None:
+            agents = free_modules["agents"]
+            config["free"]["n_agents"] = int(jax.tree.leaves(agents)[0].shape[0])
+            config["free"]["saved_agent"] = int(free_modules["saved_agent"])
+            tree["free"]["agents"] = agents
         if free_modules.get("net") is not None:
             config["free"]["an"] = dataclasses.asdict(free_modules["esn_config"])
             tree["free"]["an"] = free_modules["net"]
@@ -396,7 +440,8 @@ def load(directory: str | pathlib.Path) -> Robot:
             env_config=EnvConfig(**f["env"]),
             an=TrainedAN(tree["free"]["an"], esn.ESNConfig(**f["an"])) if "an" in f else None,
             # saves before the field existed acted with the defaults
-            params=EnvParams(**f.get("params", {})))
+            params=EnvParams(**f.get("params", {})),
+            agents=tree["free"].get("agents"), saved_agent=f.get("saved_agent"))
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
                  env_config=env_cfg, config=config, free=modules_free)

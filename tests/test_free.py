@@ -3,6 +3,8 @@ training on random placements, and the robot that looks before it acts."""
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +13,7 @@ import pytest
 import grounding_jax as gj
 from grounding_jax import al, beyond, cacla, esn, ik, scene, tasks, tl, tl_xy, trained
 from grounding_jax import placement as free
+from grounding_jax.checkpoint import CheckpointError
 from grounding_jax.env import scale_joints
 
 
@@ -260,7 +263,9 @@ def test_training_draws_a_placement_per_episode():
 def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer):
     k = jax.random.key(0)
     xy_cfg = tl_xy.XYConfig(hidden=8, replication=2)
-    free_agent = cacla.init(k, beyond.FREE_LEARNER)
+    # two trained agents saved beside the robot's own (the second)
+    agents = jax.vmap(lambda kk: cacla.init(kk, beyond.FREE_LEARNER))(jax.random.split(k, 2))
+    free_agent = jax.tree.map(lambda x: x[1], agents)
     xy_params = tl_xy.init(k, xy_cfg)
     # an untrained namer of the right shape (train.py's quick profile trains a real one:
     # tests/test_train.py checks that it fits its sequences)
@@ -269,7 +274,7 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
     modules = {"xy_params": xy_params, "xy_config": xy_cfg, "agent": free_agent,
                "al_config": beyond.FREE_LEARNER,
                "env_config": beyond.env_config(), "net": net, "esn_config": esn_cfg,
-               "params": beyond.params()}
+               "params": beyond.params(), "agents": agents, "saved_agent": 1}
     tl_cfg = tl.TLConfig(max_hidden=5, max_replication=1)
     tl_hp = tl.TLHyper(hidden=5, replication=1)
     trained.save(tmp_path / "m", tl.init(k, tl_hp, tl_cfg), tl_hp,
@@ -307,6 +312,37 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
                           params=gj.EnvParams())
     np.testing.assert_array_equal(out["trajectory"].qpos, same["trajectory"].qpos)
     assert not np.array_equal(out["trajectory"].qpos, paper["trajectory"].qpos)
+    # every saved agent can act in its place; the compiled episode is shared
+    assert robot.free.n_agents == 2 and robot.free.saved_agent == 1
+    first = robot.with_free_agent(0)
+    np.testing.assert_array_equal(first.free.al.agent.actor.w1, agents.actor.w1[0])
+    assert first._performers.keys() == robot._performers.keys()
+    other = first.perform("push", "red", 4, steps=3, placement="random", key=jax.random.key(5))
+    again = robot.with_free_agent(1).perform("push", "red", 4, steps=3, placement="random",
+                                             key=jax.random.key(5))
+    np.testing.assert_array_equal(again["trajectory"].qpos, out["trajectory"].qpos)
+    assert not np.array_equal(other["trajectory"].qpos, out["trajectory"].qpos)
+    for bad in (2, -1, 0.5, True):
+        with pytest.raises(ValueError, match=r"i: .*0\.\.1"):
+            robot.with_free_agent(bad)
+    # a config whose saved agent is not among the saved ones is refused before restoring
+    cfg_path = tmp_path / "m" / "config.json"
+    cfg = json.loads(cfg_path.read_text())
+    cfg["config"]["free"]["saved_agent"] = 2
+    cfg_path.write_text(json.dumps(cfg))
+    with pytest.raises(CheckpointError, match="saved_agent"):
+        gj.load(tmp_path / "m")
+
+
+def test_the_saved_agent_is_the_one_that_clears_every_goal_by_most():
+    table = {"per_agent_by_action": {"point": [1.0, 0.95, 0.91, 0.99],
+                                     "touch": [0.95, 0.84, 0.95, 0.84],
+                                     "push": [0.80, 0.92, 0.99, 0.92]},
+             "per_agent": [0.92, 0.90, 0.95, 0.92]}
+    # worst margins: push -0.05; touch +0.04; point +0.01; touch +0.04 (the higher overall)
+    assert beyond.choose(table) == 3
+    table["per_agent"][1] = 0.93
+    assert beyond.choose(table) == 1
 
 
 def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp_path,

@@ -158,3 +158,15 @@ def test_the_continuous_tl_learns_where_the_named_object_is():
     xy = tl_xy.localize(params, small.bitmaps[idx[:4]], tl_xy.SYMBOLS[small.layout[idx[:4]], 3],
                         cfg)
     assert xy.shape == (4, 2)
+
+
+def test_the_continuous_tls_learning_rate_falls_along_a_half_cosine():
+    hp = tl_xy.XYHyper(lr=2e-3, lr_final=0.01)
+    lr = [float(tl_xy.learning_rate(hp, s, 101)) for s in (0, 50, 100, 500)]
+    np.testing.assert_allclose(lr, [2e-3, 2e-3 * 0.505, 2e-5, 2e-5], rtol=1e-5)
+    flat = tl_xy.XYHyper(lr=2e-3, lr_final=1.0)  # constant
+    np.testing.assert_allclose([float(tl_xy.learning_rate(flat, s, 101)) for s in (0, 37, 100)],
+                               2e-3, rtol=1e-6)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="lr_final"):
+            tl_xy.XYHyper(lr_final=bad).validate()

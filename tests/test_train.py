@@ -15,6 +15,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 import train  # noqa: E402
+from grounding_jax import beyond  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -96,6 +97,9 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert (tmp_path / "beyond" / "tl_xy.png").stat().st_size > 1000
     free = data["beyond"]["free"]
     assert free["seeds"] == 2 and set(free["success"]) == {"45", "90"}
+    # the agent saved is chosen on validation placements, not the reported ones
+    assert free["saved_agent"] == beyond.choose(free["validation"]) in (0, 1)
+    assert len(free["validation"]["per_agent"]) == 2
     assert free["eyes"]["words"] == ["red", "green", "blue"]
     assert free["eyes_shape"]["words"] == ["box", "cylinder", "sphere"]
     for table in (free["final"], free["eyes"], free["eyes_shape"]):
@@ -141,6 +145,21 @@ def test_readme_example_loads_the_trained_robot_and_uses_it(quick, monkeypatch, 
     assert out["named"][0] in ("point", "touch", "push")
 
 
+def test_the_perform_check_runs_every_saved_agent_on_the_same_episodes(quick, monkeypatch):
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import free_perform_check
+
+    monkeypatch.chdir(quick.parent.parent)  # it writes results/benchmarks/ here
+    res = free_perform_check.main(["--modules", str(quick / "modules"), "--episodes", "3",
+                                   "--all-agents"])
+    assert [r["action"] for r in res["rows"]] == ["point", "touch", "push"]
+    assert all(len(v) == 2 for v in res["per_agent"].values())
+    # the robot's own agent, run again through with_free_agent, does as the robot did
+    for a in ("point", "touch", "push"):
+        assert res["per_agent"][a][res["saved_agent"]] == res[f"success_{a}"]
+    assert (quick.parent / "benchmarks" / "free_perform_check.json").exists()
+
+
 def test_readme_beyond_example_runs_on_the_committed_modules(monkeypatch):
     code = _readout_block("**Acting anywhere")
     assert 'gj.load("results/paper/modules")' in code
@@ -168,7 +187,21 @@ def test_only_free_robot_reruns_that_part_with_the_whole_runs_keys(quick, capsys
         {k: v for k, v in before.items() if k not in ("beyond", "wall_s")}
     robot = gj.load(quick / "modules")  # saved again: the paper's agent unchanged
     np.testing.assert_array_equal(robot.al.agent.actor.w1, paper_agent.actor.w1)
+    # every free agent saved, the robot's own the one chosen on validation placements
+    saved = after["beyond"]["free"]["saved_agent"]
+    assert robot.free.n_agents == 2 and robot.free.saved_agent == saved
+    np.testing.assert_array_equal(robot.free.al.agent.actor.w1,
+                                  robot.free.agents.actor.w1[saved])
     assert robot.free is not None and "free-robot" in (quick / "REPORT.md").read_text()
+    # --only beyond trains the continuous TL again too, with the whole run's keys
+    assert train.main(["--out", str(quick), "--only", "beyond"]) == 0
+    again = json.loads((quick / "metrics.json").read_text())
+    untimed_xy = lambda xy: {k: v for k, v in xy.items() if k != "wall_s"}  # noqa: E731
+    assert untimed_xy(again["beyond"]["tl_xy"]) == untimed_xy(before["beyond"]["tl_xy"])
+    assert untimed(again["beyond"]["free"]) == untimed(before["beyond"]["free"])
+    assert again["reruns"] == ["beyond", "free-robot"] and "beyond_rerun" in again["wall_s"]
+    np.testing.assert_array_equal(gj.load(quick / "modules").free.xy_params.w1,
+                                  robot.free.xy_params.w1)
     # refused before anything runs: a kept part's settings changed, or no run there
     capsys.readouterr()
     assert train.main(["--out", str(quick), "--only", "free-robot",
