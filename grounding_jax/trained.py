@@ -18,8 +18,10 @@ free family's actor acts on them, and the free family's namer (an ESN over that 
 that TL's hidden layers) names what was done (``named`` is None for modules saved without it).
 
 A checkpoint is refused (:class:`CheckpointError`) when it was written by another package
-version, when its config is not one this version can build, or when its arrays do not match
-that config.
+version, when its config.json was edited after saving, when a file or an array differs from
+the checksums saved with it, when its config is not one this version can build, or when its
+arrays do not match that config. :func:`save` holds the parent folder's writer lock and
+replaces an earlier save only once the new one is complete.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, cacla, esn, learners, scene, tasks, tl, tl_data, tl_xy
+from grounding_jax import _guard, al, cacla, esn, learners, scene, tasks, tl, tl_data, tl_xy
 from grounding_jax.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.env import DEFAULT_PARAMS, EnvConfig, EnvParams, make_task
 
@@ -230,6 +232,8 @@ class Robot:
         """
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
+        if params is not None:
+            params.validate()  # on the host: inside the compiled episode it is traced
         if placement is not None:
             return self._perform_free(action, word, layout, steps, key, params, placement)
         params = DEFAULT_PARAMS if params is None else params
@@ -397,26 +401,32 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         if free_modules.get("net") is not None:
             config["free"]["an"] = dataclasses.asdict(free_modules["esn_config"])
             tree["free"]["an"] = free_modules["net"]
-    tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    ck = Checkpointer(tmp, KIND, config, max_to_keep=1)
-    ck.save(0, tree)
-    ck.close()
-    old = directory.with_name(f".{directory.name}.old-{os.getpid()}")
-    if directory.exists():
-        os.replace(directory, old)
-    os.replace(tmp, directory)
-    if old.exists():
-        shutil.rmtree(old)
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    with _guard.folder_lock(directory.parent, f"saving {directory.name}"):
+        tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        try:
+            with Checkpointer(tmp, KIND, config, max_to_keep=1) as ck:
+                ck.save(0, tree)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)  # the earlier save stays as it was
+            raise
+        old = directory.with_name(f".{directory.name}.old-{os.getpid()}")
+        if directory.exists():
+            os.replace(directory, old)
+        os.replace(tmp, directory)
+        if old.exists():
+            shutil.rmtree(old)
 
 
 def load(directory: str | pathlib.Path) -> Robot:
     """Load modules saved by :func:`save` (``train.py`` writes ``results/<profile>/modules``).
 
     Raises:
-        CheckpointError: no checkpoint there, another package version, a config this version
-            cannot build, or arrays that do not match it.
+        CheckpointError: no checkpoint there, another package version, a config.json edited
+            after saving, damaged files or arrays (named), a config this version cannot
+            build, or arrays that do not match it.
     """
     directory = pathlib.Path(directory)
     stored = read_config(directory)
@@ -424,13 +434,13 @@ def load(directory: str | pathlib.Path) -> Robot:
         raise CheckpointError(f"{directory}: holds a {stored['kind']!r} checkpoint, not "
                               f"trained modules ({KIND!r})")
     config = stored["config"]
-    tl_cfg, tl_hp, al_cfg, esn_cfg, env_cfg = _configs(config)
-    ck = Checkpointer(directory, KIND, config)
-    step = ck.latest_step()
-    if step is None:
-        raise CheckpointError(f"{directory}: config.json but no complete checkpoint")
-    tree = ck.restore(step, _like(config))
-    ck.close()
+    with Checkpointer(directory, KIND, config, read_only=True) as ck:
+        step = ck.latest_step()
+        if step is None:
+            raise CheckpointError(f"{directory}: config.json but no complete checkpoint")
+        ck.check_sealed(step)  # an edited config.json is refused before it is built
+        tl_cfg, tl_hp, al_cfg, esn_cfg, env_cfg = _configs(config)
+        tree = ck.restore(step, _like(config))
     modules_free = None
     if "free" in config:
         f = config["free"]
@@ -445,3 +455,26 @@ def load(directory: str | pathlib.Path) -> Robot:
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
                  env_config=env_cfg, config=config, free=modules_free)
+
+
+def seal(directory: str | pathlib.Path) -> None:
+    """Seal trained modules saved before checksums were saved with them (grounding_jax
+    0.1.0 of 2026-12-03 and earlier): write their step's manifest from the files as they
+    are now. Trust the files first (e.g. they are as committed); :func:`load` refuses
+    modules without a manifest.
+
+    Raises:
+        CheckpointError: not a modules folder, already sealed, or unreadable.
+    """
+    directory = pathlib.Path(directory)
+    stored = read_config(directory)
+    if stored["kind"] != KIND:
+        raise CheckpointError(f"{directory}: holds a {stored['kind']!r} checkpoint, not "
+                              f"trained modules ({KIND!r})")
+    with _guard.folder_lock(directory.parent, f"sealing {directory.name}"), Checkpointer(
+            directory, KIND, stored["config"]) as ck:
+        step = ck.latest_step()
+        if step is None:
+            raise CheckpointError(f"{directory}: config.json but no complete checkpoint")
+        ck.seal(step, _like(stored["config"]))
+

@@ -325,13 +325,16 @@ def test_the_robot_saved_with_its_free_family_looks_then_acts(tmp_path, renderer
     for bad in (2, -1, 0.5, True):
         with pytest.raises(ValueError, match=r"i: .*0\.\.1"):
             robot.with_free_agent(bad)
-    # a config whose saved agent is not among the saved ones is refused before restoring
+    # a config whose saved agent is not among the saved ones is refused before restoring:
+    # edited into config.json (its checksum no longer matches), and by the config check
     cfg_path = tmp_path / "m" / "config.json"
     cfg = json.loads(cfg_path.read_text())
     cfg["config"]["free"]["saved_agent"] = 2
     cfg_path.write_text(json.dumps(cfg))
-    with pytest.raises(CheckpointError, match="saved_agent"):
+    with pytest.raises(CheckpointError, match="config.json: edited after step 0"):
         gj.load(tmp_path / "m")
+    with pytest.raises(CheckpointError, match="saved_agent"):
+        trained._configs(cfg["config"])
 
 
 def test_the_saved_agent_is_the_one_that_clears_every_goal_by_most():

@@ -53,7 +53,7 @@ def test_save_then_load_gives_the_same_modules(tmp_path, modules):
     # saving again replaces the folder whole
     _save(tmp_path / "m", modules)
     assert gj.load(tmp_path / "m").config["extra"] == {}
-    assert [p.name for p in tmp_path.iterdir()] == ["m"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "m"]  # the writer lock
 
 
 def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
@@ -67,23 +67,34 @@ def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
     with pytest.raises(CheckpointError, match="0.0.1"):
         gj.load(tmp_path / "m")
     monkeypatch.undo()
-    # a config this version cannot build, and one whose arrays do not fit
-    cfg = json.loads(original)
-    cfg["config"]["al"]["actor_hiden"] = 40
-    cfg_path.write_text(json.dumps(cfg))
-    with pytest.raises(CheckpointError, match="actor_hiden"):
-        gj.load(tmp_path / "m")
-    cfg = json.loads(original)
-    cfg["config"]["al"]["actor_hidden"] = 30
-    cfg_path.write_text(json.dumps(cfg))
-    with pytest.raises(CheckpointError, match="not compatible with the stored shape"):
-        gj.load(tmp_path / "m")
-    # a damaged array file
+    # a config edited after saving: refused before anything is built from it
+    for edit in ({"al": {"actor_hiden": 40}}, {"al": {"actor_hidden": 30}},
+                 {"tl": {"hidden": 7}}):
+        cfg = json.loads(original)
+        for part, change in edit.items():
+            cfg["config"][part].update(change)
+        cfg_path.write_text(json.dumps(cfg))
+        with pytest.raises(CheckpointError, match="config.json: edited after step 0"):
+            gj.load(tmp_path / "m")
     cfg_path.write_text(original)
+    # a config this version cannot build, and arrays that do not fit the config's shapes
+    cfg = json.loads(original)["config"]
+    cfg["al"]["actor_hiden"] = 40
+    with pytest.raises(CheckpointError, match="actor_hiden"):
+        trained._configs(cfg)
+    cfg = json.loads(original)["config"]
+    cfg["al"]["actor_hidden"] = 30
+    from grounding_jax.checkpoint import Checkpointer
+
+    with Checkpointer(tmp_path / "m", trained.KIND, json.loads(original)["config"],
+                      read_only=True) as ck, pytest.raises(
+            CheckpointError, match="not compatible with the stored shape"):
+        ck.restore(0, trained._like(cfg))
+    # a damaged array file
     for f in (tmp_path / "m" / "steps").rglob("*"):
         if f.is_file() and f.parent.name == "d":
             f.write_bytes(b"\0" * 10)
-    with pytest.raises(CheckpointError, match="cannot read"):
+    with pytest.raises(CheckpointError, match="steps/0: damaged"):
         gj.load(tmp_path / "m")
 
 
