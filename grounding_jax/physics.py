@@ -172,7 +172,10 @@ def mjx_model():
     """The scene as an MJX model (device arrays), made once per process."""
     from mujoco import mjx
 
-    return mjx.put_model(scene.model())
+    # concrete arrays even when first asked for inside a trace (e.g. ``jax.eval_shape`` of a
+    # trainer): a cached tracer would leak into every later use
+    with jax.ensure_compile_time_eval():
+        return mjx.put_model(scene.model())
 
 
 def _mjx_fns(substeps: int) -> tuple[StepFn, ForwardFn]:

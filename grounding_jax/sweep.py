@@ -54,9 +54,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax import al, al_experiments, beyond, cacla, env, physics, tl, tl_data
-from grounding_jax._checks import Rule
-from grounding_jax._io import atomic_write_text, pyplot, write_figure
+from grounding_jax import _guard, al, al_experiments, beyond, cacla, env, physics, tl, tl_data
+from grounding_jax._checks import FLOAT32_MAX, Rule
+from grounding_jax._io import Staged, code_fingerprint, library_versions, pyplot, write_figure
 from grounding_jax.checkpoint import Checkpointer, CheckpointError
 from grounding_jax.env import EnvConfig, EnvParams
 
@@ -251,6 +251,10 @@ def _check_value(source: str, module: str, key: str, value: Any) -> Any:
     if field.choices is not None and value not in field.choices:
         raise _err(source, key, f"unknown value {value!r}; accepted values: {field.choices}")
     if field.ok is not None and not field.ok(value):
+        if field.type is float and abs(value) > FLOAT32_MAX:
+            raise _err(source, key, f"must be {field.rule} and fit in float32 (|x| <= "
+                                    f"{FLOAT32_MAX:.4g}: traced values are float32), got "
+                                    f"{value!r}")
         raise _err(source, key, f"must be {field.rule}, got {value!r}")
     return value
 
@@ -347,8 +351,12 @@ def _parse_value(text: str) -> Any:
 
 
 def apply_overrides(data: dict, overrides: Sequence[str], source: str) -> dict:
-    """``key=value`` overrides: a grid field gets a new list, a top-level key or any other
-    field a new value (in [params])."""
+    """``key=value`` overrides: a grid field gets a new list, a top-level key a new value,
+    any other field a new value in [params] -- or, given a list (``a,b``), joins the grid."""
+    for section in ("params", "grid"):
+        if not isinstance(data.get(section, {}), dict):
+            raise _err(source, section, f"must be a table ([{section}] with one field per "
+                                        f"line), got {data[section]!r}")
     data = {**data, "params": dict(data.get("params", {})), "grid": dict(data.get("grid", {}))}
     for item in overrides:
         key, sep, text = item.partition("=")
@@ -359,6 +367,9 @@ def apply_overrides(data: dict, overrides: Sequence[str], source: str) -> dict:
             data["grid"][key] = value if isinstance(value, list) else [value]
         elif key in TOP_KEYS and key not in ("params", "grid"):
             data[key] = value
+        elif isinstance(value, list):
+            data["params"].pop(key, None)
+            data["grid"][key] = value
         else:
             data["params"][key] = value
     return data
@@ -370,9 +381,14 @@ def load_spec(path: str | pathlib.Path, overrides: Sequence[str] = ()) -> SweepS
     if not path.is_file():
         raise SweepError(f"{path}: no such sweep file")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as e:
+        raise SweepError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start}); "
+                         "accepted: a TOML sweep file") from None
     except tomllib.TOMLDecodeError as e:
         raise SweepError(f"{path}: not valid TOML ({e})") from None
+    except OSError as e:
+        raise SweepError(f"{path}: cannot be read ({e.strerror or e})") from None
     return parse_spec(apply_overrides(data, overrides, str(path)), str(path))
 
 
@@ -481,13 +497,19 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
             raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
                                   "starts over") from None
         if ck.latest_step() is not None and not resume:
+            ck.close()
             raise CheckpointError(f"{ck.directory}: holds a checkpoint of an earlier run; "
                                   "pass --resume to continue it or --overwrite to start over")
     report = None
     if progress is not None:  # count the real runs, not the padding rows
         def report(units: int) -> None:
             progress(units * len(rows) // (len(rows) + pad))
-    metrics, params = ADAPTERS[spec.module].train(cfg, keys, hp, spec, sharding, ck, report)
+    try:
+        metrics, params = ADAPTERS[spec.module].train(cfg, keys, hp, spec, sharding, ck,
+                                                      report)
+    finally:
+        if ck is not None:
+            ck.close()
     metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
     finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
                            len(rows)) & _finite_rows(metrics, len(rows)))
@@ -508,14 +530,45 @@ def _run_keys(spec: SweepSpec, key: jax.Array | None = None) -> np.ndarray:
                                                            * spec.seeds)))
 
 
-def _checkpointer(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path
-                  ) -> Checkpointer:
-    static, _ = spec.groups()[group]
+def identity(spec: SweepSpec, group: int, run_keys: np.ndarray) -> dict:
+    """What a static group's checkpoints belong to: the spec, every point's whole assignment
+    (defaults included), the group's static config and the traced values of each of its runs
+    (every field of the hyperparameter pytree, defaults included), the run keys, the device
+    count, the code's fingerprint and the library versions. A resumed run must match it
+    exactly (``Checkpointer`` names the fields that differ)."""
+    static, idx = spec.groups()[group]
+    rows = _group_rows(spec, group)
+    points = spec.points()
+    hp = _hyper(spec, [points[r // spec.seeds] for r in rows])
+    traced = {jax.tree_util.keystr(path): np.asarray(leaf).tolist()
+              for path, leaf in jax.tree_util.tree_flatten_with_path(hp)[0]}
+    cfg = _module_config(spec, static)
+    return {"spec": spec.to_json(), "group": group, "static": static,
+            "points": [points[i] for i in idx],
+            "config": json.loads(json.dumps(dataclasses.asdict(cfg), default=repr)),
+            "traced": traced, "rows": rows.tolist(), "devices": jax.local_device_count(),
+            "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest(),
+            "code": code_fingerprint(), "libraries": library_versions()}
+
+
+def _checkpointer(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path,
+                  read_only: bool = False) -> Checkpointer:
+    # a reader takes the arrays as they were trained, by whatever code; a resumed run must
+    # continue with the code and libraries it began with
     return Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
-                        {"spec": spec.to_json(), "group": group, "static": static,
-                         "rows": _group_rows(spec, group).tolist(),
-                         "devices": jax.local_device_count(),
-                         "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest()})
+                        identity(spec, group, run_keys), read_only=read_only,
+                        ignore=("code", "libraries") if read_only else ())
+
+
+def _restore_to_resume(ck: Checkpointer, like: Any) -> tuple[int, Any] | None:
+    """The newest intact step of a group (a damaged newer one is set aside, said on stderr),
+    or None when the group has no step yet."""
+    found = ck.restore_latest(like, fallback=True)
+    if found is not None:
+        for where in ck.set_aside_after(found[0]):
+            print(f"warning: resuming from step {found[0]}; the damaged step was moved to "
+                  f"{where}", file=sys.stderr, flush=True)
+    return found
 
 
 def _al_saved_like(cfg: al.ALConfig, keys: jax.Array, n_evals: int) -> dict:
@@ -557,17 +610,19 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
     folder = pathlib.Path(out) / spec.name
     found: dict[int, tuple] = {}
     for g, (static, idx) in enumerate(spec.groups()):
-        ck = _checkpointer(spec, g, run_keys, folder)
-        if ck.latest_step() is None:
-            raise CheckpointError(f"{ck.directory}: no checkpoint; run the sweep first")
+        where = folder / "checkpoints" / f"group{g}"
+        if not (where / "steps").is_dir():
+            raise CheckpointError(f"{where}: no checkpoint; run the sweep first")
         rows = _group_rows(spec, g)
         keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
         _, pad = _batch_sharding(len(rows))
         keys = _pad(keys, pad)
         cfg = _module_config(spec, static)
-        step = ck.latest_step()
-        saved = ck.restore(step, _al_saved_like(cfg, keys, len(spec.evaluations())))
-        ck.close()
+        with _checkpointer(spec, g, run_keys, folder, read_only=True) as ck:
+            latest = ck.restore_latest(_al_saved_like(cfg, keys, len(spec.evaluations())))
+        if latest is None:
+            raise CheckpointError(f"{where}: no checkpoint; run the sweep first")
+        step, saved = latest
         for j, p in enumerate(idx):
             take = slice(j * spec.seeds, (j + 1) * spec.seeds)
             found[p] = (step, jax.tree.map(lambda x, t=take: x[t], saved["agents"]),
@@ -596,9 +651,10 @@ def _run_al(cfg: al.ALConfig, keys, hp, spec: SweepSpec, sharding, ck, progress)
     names = al_experiments.SUCCESS_METRICS
     evals = np.full((len(names), n, len(evaluations)), np.nan, np.float32)
     rates = al_experiments.make_success_rates(cfg.env) if evaluations else None
-    if ck is not None and ck.latest_step() is not None:
-        step = ck.latest_step()
-        saved = ck.restore(step, _al_saved_like(cfg, keys, len(evaluations)))
+    found = None if ck is None or not ck.steps() else _restore_to_resume(
+        ck, _al_saved_like(cfg, keys, len(evaluations)))
+    if found is not None:
+        saved = found[1]
         if not np.array_equal(jax.random.key_data(saved["keys"]), jax.random.key_data(keys)):
             raise CheckpointError(f"{ck.directory}: stored run keys differ from this run's")
         start = (int(saved["episode"]), saved["agents"], saved["metrics"])
@@ -630,9 +686,10 @@ def _run_al(cfg: al.ALConfig, keys, hp, spec: SweepSpec, sharding, ck, progress)
 def _run_tl(cfg: tl.TLConfig, keys, hp, spec: SweepSpec, sharding, ck, progress):
     n = keys.shape[0]
     train = jax.jit(jax.vmap(tl.make_train(cfg)))
-    if ck is not None and ck.latest_step() is not None:
-        like = jax.eval_shape(train, keys, hp)
-        params, metrics = ck.restore(ck.latest_step(), like)
+    found = None if ck is None or not ck.steps() else _restore_to_resume(
+        ck, jax.eval_shape(train, keys, hp))
+    if found is not None:
+        params, metrics = found[1]
     else:
         keys, hp = jax.device_put((keys, hp), sharding)
         params, metrics = jax.block_until_ready(train(keys, hp))
@@ -690,13 +747,20 @@ def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarr
     """Per run value of the plotted metric, per point mean/std over the finite runs, and the
     learning curves (AL)."""
     n_pts = len(spec.points())
+    adapter = ADAPTERS[spec.module]
     if spec.metric.startswith("success_"):  # [runs, evaluations]: the last one counts
         curve, window = metrics[spec.metric], None
         value = curve[:, -1]
-    elif ADAPTERS[spec.module].curves:
-        curve = metrics[spec.metric]  # [runs, episodes]
-        window = max(1, curve.shape[1] // 10)
-        value = curve[:, -window:].mean(1)
+    elif adapter.curves:
+        curve = metrics[spec.metric]  # [runs, episodes of the longest run]
+        lengths = np.repeat([adapter.length(p) for p in spec.points()], spec.seeds)
+        if np.all(lengths == curve.shape[1]):
+            window = max(1, curve.shape[1] // 10)
+            value = curve[:, -window:].mean(1)
+        else:  # static groups of other lengths (NaN-padded): each run's own last tenth
+            window = None
+            value = np.asarray([curve[r, n - max(1, n // 10): n].mean()
+                                for r, n in enumerate(lengths)], curve.dtype)
     else:  # the final value after training
         curve, value, window = None, metrics[f"final_{spec.metric}"], None
     value = value.reshape(n_pts, spec.seeds)
@@ -728,7 +792,7 @@ def _summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarr
     return out
 
 
-def _write_csv(path: pathlib.Path, spec: SweepSpec, summary: dict) -> None:
+def _csv_text(spec: SweepSpec, summary: dict) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     names = [f"success_{k}" for k in al_experiments.SUCCESS_METRICS] if "success" in summary \
@@ -740,7 +804,7 @@ def _write_csv(path: pathlib.Path, spec: SweepSpec, summary: dict) -> None:
             extra = [summary["success"][i]["rates"][k[len("success_"):]]["runs"][s]
                      for k in names]
             w.writerow([*p["point"].values(), s, v, int(s in p["diverged"]), *extra])
-    atomic_write_text(path, buf.getvalue())
+    return buf.getvalue()
 
 
 def point_label(spec: SweepSpec, point: dict) -> str:
@@ -753,7 +817,7 @@ def point_label(spec: SweepSpec, point: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in point.items())
 
 
-def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
+def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path, staged: Staged) -> None:
     plt = pyplot()
     curves = "curves" in summary
     height = max(3.6, 0.3 * len(summary["points"])) if spec.design == "axes" else 3.6
@@ -766,7 +830,8 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
         ax = axes[0]
         if len(summary["points"]) > 10:  # more lines than the default colour cycle
             ax.set_prop_cycle(color=plt.get_cmap("tab20").colors)
-        for p, c in zip(summary["points"], summary["curves"], strict=True):
+        for p, c, full in zip(summary["points"], summary["curves"], spec.points(),
+                              strict=True):
             c = np.asarray(c, float)
             name = point_label(spec, p["point"])
             if not np.isfinite(c).any():
@@ -774,7 +839,7 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
             if spec.metric.startswith("success_"):  # measured at the evaluation episodes
                 ax.plot(summary["evaluations"], np.nanmedian(c, 0), marker="o", label=name)
                 continue
-            mean = np.nanmean(c, 0)
+            mean = np.nanmean(c[:, : ADAPTERS[spec.module].length(full)], 0)  # unpadded
             k = max(1, mean.size // 25)  # bins of k episodes
             bins = mean[: mean.size // k * k].reshape(-1, k).mean(1)
             ax.plot(np.arange(bins.size) * k + k / 2, bins, label=name)
@@ -784,7 +849,8 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
         ax.legend(fontsize=7)
     ax = axes[-1]
     window = (f"mean of the last {summary['window']} episodes" if summary.get("window")
-              else "after training")
+              else "mean of each run's last tenth" if curves and not
+              spec.metric.startswith("success_") else "after training")
     if spec.design == "axes":  # one row per point, the base on top
         ps = summary["points"]
         ys = np.arange(len(ps))[::-1]
@@ -816,7 +882,8 @@ def _figure(spec: SweepSpec, summary: dict, out: pathlib.Path) -> None:
     lengths = sorted({adapter.length(p) for p in spec.points()})
     fig.suptitle(f"{spec.title} ({'/'.join(map(str, lengths))} {adapter.unit})")
     fig.tight_layout()
-    write_figure(out, spec.figure, {k: v for k, v in summary.items() if k != "curves"}, fig)
+    write_figure(out, spec.figure, {k: v for k, v in summary.items() if k != "curves"}, fig,
+                 staged)
 
 
 def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: bool = False,
@@ -825,10 +892,15 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
         ) -> dict:
     """Run a sweep and write its results under ``out/<spec.name>``.
 
+    The sweep's folder is locked while the sweep runs (a second writer is refused, with this
+    one's pid); its result files (sweep.json, runs.csv, metrics.npz, the figure) replace the
+    earlier ones together, only once all of them are written.
+
     Args:
         spec: a validated sweep (:func:`load_spec`).
         out: parent folder of the sweep's folder.
-        resume: continue from the sweep's checkpoints (bit-identical to an uninterrupted run).
+        resume: continue from the sweep's checkpoints (bit-identical to an uninterrupted run;
+            a damaged newest step falls back to the newest intact one, and says so).
         overwrite: delete the sweep's earlier checkpoints first (else they stop the run
             unless ``resume``).
         executor: ``"local"`` (this process, batch sharded over local devices) or ``"ray"``
@@ -841,6 +913,12 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
 
     Returns:
         The summary written to ``sweep.json``.
+
+    Raises:
+        SweepError: bad arguments, or an output folder that cannot be written.
+        CheckpointError: checkpoints of another run, damaged ones, or ones left without
+            ``resume``/``overwrite``.
+        FolderBusyError: another process is writing this sweep's folder.
     """
     if executor not in EXECUTORS:
         raise SweepError(f"executor: unknown value {executor!r}; accepted values: {EXECUTORS}")
@@ -849,12 +927,34 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
     if seed is not None:
         spec = dataclasses.replace(spec, seed=seed)
     folder = pathlib.Path(out) / spec.name
+    if folder.exists() and not folder.is_dir():
+        raise SweepError(f"out: {folder} is a file, not a folder; name another --out")
+    try:
+        lock = _guard.folder_lock(folder, f"sweep {spec.name}")
+        lock.__enter__()
+    except OSError as e:
+        raise SweepError(f"out: cannot write {folder} ({e.strerror or e}); name a writable "
+                         "folder with --out") from None
+    try:
+        return _run_locked(spec, folder, resume, overwrite, executor, ray_address,
+                           show_progress, key)
+    finally:
+        lock.__exit__(None, None, None)
+
+
+def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: bool,
+                executor: str, ray_address: str | None, show_progress: bool,
+                key: jax.Array | None) -> dict:
     if overwrite and (folder / "checkpoints").exists():
         shutil.rmtree(folder / "checkpoints")
-    folder.mkdir(parents=True, exist_ok=True)
     n_pts = len(spec.points())
     run_keys = _run_keys(spec, key)  # the one split
     groups = spec.groups()
+    if resume and not any((folder / "checkpoints" / f"group{g}" / "steps").is_dir()
+                          and any((folder / "checkpoints" / f"group{g}" / "steps").iterdir())
+                          for g in range(len(groups))):
+        print(f"note: nothing to resume in {folder} (no checkpoint was completed); "
+              "starting from the beginning", file=sys.stderr, flush=True)
     per_run = ADAPTERS[spec.module].length  # a group's static values hold the run length
     total = sum(len(idx) * spec.seeds * per_run(s) for s, idx in groups)
     t0 = time.perf_counter()
@@ -867,25 +967,43 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
         else:
             results = [run_group(spec, g, run_keys, folder, resume, bar.update)
                        for g in range(len(groups))]
-    names = results[0]["metrics"].keys()
-    metrics = {k: np.zeros((n_pts * spec.seeds,) + results[0]["metrics"][k].shape[1:],
-                           results[0]["metrics"][k].dtype) for k in names}
-    finite = np.zeros(n_pts * spec.seeds, bool)
-    for r in results:
-        for k in names:
-            metrics[k][r["rows"]] = r["metrics"][k]
-        finite[r["rows"]] = r["finite"]
+    metrics, finite = _assemble(results, n_pts * spec.seeds)
     summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
                "groups": [{"static": s, "points": idx} for s, idx in groups],
                "executor": executor, "devices": jax.local_device_count(),
                "wall_s": time.perf_counter() - t0,
                "diverged_runs": int((~finite).sum()), **_summaries(spec, metrics, finite)}
-    _write_csv(folder / "runs.csv", spec, summary)
-    _figure(spec, summary, folder)
-    atomic_write_text(folder / "sweep.json", json.dumps(summary, indent=1) + "\n")
-    np.savez(folder / ".metrics.tmp.npz", finite=finite, **metrics)
-    (folder / ".metrics.tmp.npz").replace(folder / "metrics.npz")
+    try:
+        with Staged(folder).writing() as staged:
+            staged.write_text("runs.csv", _csv_text(spec, summary))
+            _figure(spec, summary, folder, staged)
+            staged.write_text("sweep.json", json.dumps(summary, indent=1) + "\n")
+            np.savez(staged.path("metrics.npz"), finite=finite, **metrics)
+    except OSError as e:
+        raise SweepError(f"out: cannot write the results in {folder} ({e.strerror or e}); "
+                         "the earlier results there and the checkpoints are kept") from None
     return summary
+
+
+def _assemble(results: list[dict], n_rows: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The groups' metrics in one array per metric (row ``point * seeds + seed``). Groups of
+    other run lengths (a grid over a static length field) give curves of other lengths: the
+    shorter ones are padded with NaN."""
+    metrics = {}
+    for k in results[0]["metrics"]:
+        parts = [np.asarray(r["metrics"][k]) for r in results]
+        shape = tuple(max(d) for d in zip(*(a.shape[1:] for a in parts), strict=True))
+        ragged = any(a.shape[1:] != shape for a in parts)
+        dtype = np.result_type(parts[0].dtype, np.float32) if ragged else parts[0].dtype
+        arr = np.full((n_rows, *shape), np.nan, dtype) if ragged else np.zeros(
+            (n_rows, *shape), dtype)
+        for r, a in zip(results, parts, strict=True):
+            arr[(r["rows"], *(slice(0, d) for d in a.shape[1:]))] = a
+        metrics[k] = arr
+    finite = np.zeros(n_rows, bool)
+    for r in results:
+        finite[r["rows"]] = r["finite"]
+    return metrics, finite
 
 
 def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> list[dict]:
@@ -937,16 +1055,25 @@ def main(argv: list[str] | None = None) -> int:
 
     grounding_jax.enable_compilation_cache()
     try:
-        if args.executor not in EXECUTORS:
-            raise SweepError(f"--executor: unknown value {args.executor!r}; accepted values: "
-                             f"{EXECUTORS}")
-        spec = load_spec(args.file, args.set)
-        summary = run(spec, args.out, resume=args.resume, overwrite=args.overwrite,
-                      executor=args.executor, ray_address=args.ray_address, seed=args.seed,
-                      show_progress=not args.no_progress)
-    except (SweepError, CheckpointError) as e:
+        with _guard.handle_interrupts():
+            if args.executor not in EXECUTORS:
+                raise SweepError(f"--executor: unknown value {args.executor!r}; accepted "
+                                 f"values: {EXECUTORS}")
+            spec = load_spec(args.file, args.set)
+            summary = run(spec, args.out, resume=args.resume, overwrite=args.overwrite,
+                          executor=args.executor, ray_address=args.ray_address,
+                          seed=args.seed, show_progress=not args.no_progress)
+    except (SweepError, CheckpointError, _guard.FolderBusyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a disk or folder fault outside the paths above
+        print(f"error: {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, _guard.Interrupted) as e:
+        print(f"\ninterrupted ({'SIGINT' if isinstance(e, KeyboardInterrupt) else e}): the "
+              "newest complete checkpoint of each group is kept; continue with:\n  "
+              f"{resume_command(argv)}", file=sys.stderr, flush=True)
+        return _guard.exit_code(e)
     folder = pathlib.Path(args.out) / spec.name
     for p in summary["points"]:
         mean = "diverged" if p["mean"] is None else f"{p['mean']:.4g} ± {p['std']:.2g}"
@@ -959,6 +1086,18 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {folder}/ (sweep.json, runs.csv, {spec.figure}.png) in "
           f"{summary['wall_s']:.1f} s")
     return 0
+
+
+def resume_command(argv: list[str] | None = None) -> str:
+    """The command line that continues this one: the same arguments with ``--resume``
+    instead of ``--overwrite``."""
+    import shlex
+
+    args = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--overwrite"]
+    if "--resume" not in args:
+        args.append("--resume")
+    return shlex.join([sys.executable.rpartition("/")[2] or "python", "-m",
+                       "grounding_jax.sweep", *args])
 
 
 if __name__ == "__main__":

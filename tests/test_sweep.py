@@ -401,15 +401,21 @@ def test_corrupt_or_mismatched_checkpoints_are_refused_and_kept(tmp_path):
         sweep.run(_spec(TINY_AL, grid={"critic_lr": [0.01]}, sigma=0.2), tmp_path,
                   resume=True, show_progress=False)
     assert _tree_hash(folder) == before
-    # damage every data file of the newest checkpoint
-    newest = max((folder / "group0" / "steps").iterdir(), key=lambda p: int(p.name))
+    whole = _metrics(tmp_path / "sweep")
+    # damage every data file of the newest checkpoint: the resumed run says so, sets it
+    # aside and goes on from the step before, to the same results
+    steps = folder / "group0" / "steps"
+    newest = max(steps.iterdir(), key=lambda p: int(p.name))
     for f in newest.rglob("*"):
         if f.is_file() and f.parent.name in ("d", "ocdbt.process_0"):
             f.write_bytes(b"garbage")
-    damaged = _tree_hash(folder)
-    with pytest.raises(CheckpointError, match="cannot read"):
-        sweep.run(spec, tmp_path, resume=True, show_progress=False)
-    assert _tree_hash(folder) == damaged
+    damaged = _tree_hash(newest)
+    with pytest.raises(CheckpointError, match=f"steps/{newest.name}: damaged"):
+        sweep.trained_agents(spec, tmp_path)  # reading without resuming: refused
+    sweep.run(spec, tmp_path, resume=True, show_progress=False)
+    aside = list((folder / "group0" / "damaged").iterdir())
+    assert len(aside) == 1 and _tree_hash(aside[0]) == damaged  # kept, not deleted
+    _assert_same(_metrics(tmp_path / "sweep"), whole)
     (folder / "group0" / "config.json").write_text("{not json")
     with pytest.raises(CheckpointError, match="corrupt"):
         sweep.run(spec, tmp_path, resume=True, show_progress=False)
