@@ -359,12 +359,13 @@ def camera_strip(out: pathlib.Path, key) -> dict:
 
 def write_results(out: pathlib.Path, result: dict) -> None:
     """A run's metrics.json, metrics.csv and REPORT.md in ``out`` (each written whole)."""
-    from grounding_jax._io import atomic_write_text
+    from grounding_jax._io import Staged
     from grounding_jax.report import metrics_csv, report
 
-    atomic_write_text(out / "metrics.json", json.dumps(result, indent=2) + "\n")
-    atomic_write_text(out / "metrics.csv", metrics_csv(result))
-    atomic_write_text(out / "REPORT.md", report(result))
+    with Staged(out).writing() as staged:  # the three replace the earlier ones together
+        staged.write_text("metrics.json", json.dumps(result, indent=2) + "\n")
+        staged.write_text("metrics.csv", metrics_csv(result))
+        staged.write_text("REPORT.md", report(result))
 
 
 def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) -> int:
@@ -383,7 +384,11 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
         print(f"--only {part}: needs a whole run in {out} (metrics.json and modules/); "
               f"run train.py --profile {args.profile} first", file=sys.stderr)
         return 2
-    data = json.loads(metrics.read_text())
+    try:
+        data = _read_metrics(metrics)
+    except ValueError as e:
+        print(f"--only {part}: {e}", file=sys.stderr)
+        return 2
     if (data["profile"], data["seed"], data["backend"]) != (args.profile, args.seed,
                                                             args.backend):
         print(f"--only {part}: {metrics} is of profile {data['profile']!r}, seed "
@@ -426,6 +431,56 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    import grounding_jax as gj
+    from grounding_jax import _guard
+    from grounding_jax.checkpoint import CheckpointError
+    from grounding_jax.sweep import SweepError
+
+    gj.enable_compilation_cache()
+    out = pathlib.Path(args.out or pathlib.Path("results") / args.profile)
+    if out.exists() and not out.is_dir():
+        print(f"error: --out: {out} is a file, not a folder; name another", file=sys.stderr)
+        return 2
+    try:
+        with _guard.handle_interrupts(), _guard.folder_lock(out, "train.py"):
+            return _main(args, out)
+    except (SweepError, CheckpointError, _guard.FolderBusyError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a full disk, a read-only folder
+        print(f"error: {e.filename or out}: {e.strerror or e}; files written before are "
+              "kept whole", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, _guard.Interrupted) as e:
+        import shlex
+
+        again = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--resume"]
+        print(f"\ninterrupted ({'SIGINT' if isinstance(e, KeyboardInterrupt) else e}): the "
+              "results and checkpoints written so far are kept; the sweeps continue from "
+              f"their checkpoints with:\n  {shlex.join(['python', 'train.py', *again])} "
+              "--resume", file=sys.stderr, flush=True)
+        return _guard.exit_code(e)
+
+
+def _read_metrics(path: pathlib.Path) -> dict:
+    """A run's metrics.json, or ValueError naming the file and what it lacks."""
+    if not path.is_file():
+        raise ValueError(f"{path}: missing; run train.py first")
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not valid JSON ({e}); accepted: the metrics.json "
+                         "train.py writes") from None
+    need = ("profile", "backend", "seed", "settings", "scripted_episodes", "tl", "sweeps",
+            "al", "an", "beyond", "wall_s")
+    missing = [k for k in need if not isinstance(data, dict) or k not in data]
+    if missing:
+        raise ValueError(f"{path}: not a train.py metrics file (missing {missing}); "
+                         "accepted: the metrics.json train.py writes")
+    return data
+
+
+def _main(args: argparse.Namespace, out: pathlib.Path) -> int:
     import jax
 
     import grounding_jax as gj
@@ -434,16 +489,18 @@ def main(argv: list[str] | None = None) -> int:
     from grounding_jax.env import EnvConfig
     from grounding_jax.report import report
 
-    gj.enable_compilation_cache()
-
-    out = pathlib.Path(args.out or pathlib.Path("results") / args.profile)
     if args.report_only:
-        if not (out / "metrics.json").is_file():
-            print(f"--report-only: no {out / 'metrics.json'}; run train.py first",
-                  file=sys.stderr)
+        try:
+            data = _read_metrics(out / "metrics.json")
+            text = report(data)
+        except ValueError as e:
+            print(f"--report-only: {e}", file=sys.stderr)
             return 2
-        data = json.loads((out / "metrics.json").read_text())
-        atomic_write_text(out / "REPORT.md", report(data))
+        except (KeyError, TypeError, IndexError) as e:
+            print(f"--report-only: {out / 'metrics.json'}: not a complete train.py metrics "
+                  f"file ({type(e).__name__}: {e})", file=sys.stderr)
+            return 2
+        atomic_write_text(out / "REPORT.md", text)
         print(f"rewrote {out / 'REPORT.md'} from {out / 'metrics.json'}")
         return 0
     # the one split (split is prefix-stable: a part added at the end leaves the others' keys)
@@ -451,7 +508,6 @@ def main(argv: list[str] | None = None) -> int:
         jax.random.key(args.seed), 8)
     if args.only:
         return rerun(out, args, k_xy, k_free, k_strip)
-    out.mkdir(parents=True, exist_ok=True)
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()

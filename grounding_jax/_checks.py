@@ -36,10 +36,31 @@ class Rule:
     type: type = float
 
     def holds(self, value: Any) -> bool:
-        """Every element finite and accepted."""
-        arr = np.asarray(value, dtype=float)
-        return bool(np.all(np.isfinite(arr)) and np.all(self.ok(arr)))
+        """Every element finite, within float32's range (traced values are float32) and
+        accepted."""
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            return False
+        return bool(np.all(np.isfinite(arr)) and np.all(np.abs(arr) <= FLOAT32_MAX)
+                    and np.all(self.ok(arr)))
 
+    def refusal(self, value: Any) -> str:
+        """Why ``value`` is refused, as an error message ends: ``must be <rule>, got v``
+        (or, for a value beyond float32, that it must fit in float32)."""
+        try:
+            arr = np.asarray(value, dtype=float)
+            big = bool(np.any(np.isfinite(arr) & (np.abs(arr) > FLOAT32_MAX)))
+        except (TypeError, ValueError):
+            big = False
+        if big:
+            return (f"must be {self.text} and fit in float32 (|x| <= {FLOAT32_MAX:.4g}), "
+                    f"got {value!r}")
+        return f"must be {self.text}, got {value!r}"
+
+
+#: the largest float32: traced values beyond it overflow to inf inside ``jit``
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 POSITIVE = Rule("> 0", lambda v: v > 0)
 NON_NEGATIVE = Rule(">= 0", lambda v: v >= 0)
@@ -62,7 +83,7 @@ def check_config(obj: Any, rules: dict[str, Rule]) -> None:
         v = getattr(obj, name)
         kind = (int, np.integer) if rule.type is int else numbers.Real
         if isinstance(v, bool) or not isinstance(v, kind) or not rule.holds(v):
-            raise ValueError(f"{name}: must be {rule.text}, got {v!r}")
+            raise ValueError(f"{name}: {rule.refusal(v)}")
 
 
 def check_rules(obj: Any, rules: dict[str, Rule]) -> None:
@@ -73,4 +94,4 @@ def check_rules(obj: Any, rules: dict[str, Rule]) -> None:
         if isinstance(v, jax.core.Tracer):
             continue
         if not rule.holds(v):
-            raise ValueError(f"{name}: must be {rule.text}, got {v!r}")
+            raise ValueError(f"{name}: {rule.refusal(v)}")

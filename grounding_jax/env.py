@@ -21,6 +21,12 @@ physics is skipped), so batches of episodes can run in lockstep and learners mas
 ``reset_where`` is the auto-reset that restarts finished episodes in their batch slots instead.
 NaN entries of an action are replaced by zero (no move) and counted in
 ``metrics["nan_actions"]``; they never reach the physics state.
+
+Concrete parameters and tasks are checked on the host (a clear ``ValueError``). Traced ones
+cannot be, so inside ``jit`` an episode whose parameters are not finite (or overflow
+float32), whose task indices are out of range (which JAX's gathers would clamp silently), or
+whose physics state or observation goes non-finite is flagged: ``metrics["invalid"]`` is 1
+from that step on (0 otherwise). Check it when you feed traced values in.
 """
 
 from __future__ import annotations
@@ -276,6 +282,23 @@ def _vector(value: Any, field: str) -> jax.Array | None:
     return jnp.asarray(arr, jnp.float32)
 
 
+def _traced_faults(task: Task, params: EnvParams, n_actions: int) -> jax.Array:
+    """True where a (possibly traced) task or parameter set cannot be used: non-finite or
+    float32-overflowing parameters, task indices out of range, non-finite task vectors."""
+    bad = jnp.zeros((), bool)
+    for leaf in jax.tree.leaves(params):
+        bad |= ~jnp.all(jnp.isfinite(jnp.asarray(leaf, jnp.float32)))
+    for field, n in (("action", n_actions), ("position", tasks.N_POSITIONS),
+                     ("layout", len(scene.LAYOUTS))):
+        v = jnp.asarray(getattr(task, field))
+        bad |= jnp.any((v < 0) | (v >= n))
+    for field in ("placement", "target_xy", "velocity"):
+        v = getattr(task, field)
+        if v is not None:
+            bad |= ~jnp.all(jnp.isfinite(v))
+    return bad
+
+
 def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
     """Range-check the concrete fields of a task (traced ones are checked by make_task)."""
     for field, n in (("action", n_actions), ("position", tasks.N_POSITIONS),
@@ -471,7 +494,9 @@ class Env:
         sensordata = self._physics_forward(qpos, qvel, live)
         object_start = self._objects(qpos)
         obs, reward, terms = self._evaluate(qpos, sensordata, task, object_start, params)
-        metrics = {**terms, "nan_actions": jnp.zeros((), jnp.float32)}
+        invalid = (_traced_faults(task, params, self.tasks.n_actions)
+                   | ~jnp.all(jnp.isfinite(qpos)) | ~jnp.all(jnp.isfinite(obs)))
+        metrics = {**terms, "nan_actions": jnp.zeros((), jnp.float32), "invalid": invalid}
         metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
         return State(
             qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=jnp.zeros((), bool), task=task,
@@ -511,7 +536,11 @@ class Env:
                                 state.wrong_since)
         ended = (step >= self.config.episode_length) | (
             (wrong_since >= 0) & (step - wrong_since >= params.wrong_move_extra_steps))
-        metrics = {**terms, "nan_actions": state.metrics["nan_actions"] + jnp.sum(nan)}
+        invalid = ((state.metrics["invalid"] > 0)
+                   | _traced_faults(state.task, params, self.tasks.n_actions)
+                   | ~jnp.all(jnp.isfinite(qpos)) | ~jnp.all(jnp.isfinite(obs)))
+        metrics = {**terms, "nan_actions": state.metrics["nan_actions"] + jnp.sum(nan),
+                   "invalid": invalid}
         metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()}
         new = state.replace(
             qpos=qpos, qvel=qvel, obs=obs, reward=reward, done=ended, step=step,

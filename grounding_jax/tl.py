@@ -75,6 +75,9 @@ class TLConfig:
             raise ValueError(f"noise_mode: unknown value {self.noise_mode!r}; accepted values: "
                              f"{NOISE_MODES}")
         check_config(self, CONFIG_RULES)
+        if self.eval_every > self.epochs:
+            raise ValueError(f"eval_every: must be <= epochs ({self.epochs}: at least one "
+                             f"evaluation), got {self.eval_every}")
         b = self.pixel_budget
         if not isinstance(b, (int, np.integer)) or isinstance(b, bool) or not 0 <= b <= N_PIXELS:
             raise ValueError(f"pixel_budget: must be an integer in 0..{N_PIXELS}, got {b!r}")

@@ -77,13 +77,18 @@ def _summary(m: dict[str, np.ndarray], i: int) -> dict[str, float]:
     }
 
 
+def _eval_every(epochs: int) -> int:
+    """The default evaluation interval, or every epoch for runs shorter than it."""
+    return min(tl.TLConfig().eval_every, epochs)
+
+
 def accuracy(key: jax.Array, out: pathlib.Path, seeds: int = 5, epochs: int = 600,
              noise: float = 0.0, name: str = "accuracy", noise_mode: str = "fixed") -> dict:
     """H=50, n=20 over ``seeds`` seeds (``noise`` > 0: the pixel-flip test)."""
-    eval_every = tl.TLConfig().eval_every
+    eval_every = _eval_every(epochs)
     t = time.perf_counter()
-    m = run_grid(key, {**BASE, "epochs": epochs, "noise_mode": noise_mode}, {"noise": [noise]},
-                 seeds)
+    m = run_grid(key, {**BASE, "epochs": epochs, "noise_mode": noise_mode,
+                       "eval_every": eval_every}, {"noise": [noise]}, seeds)
     res = {**BASE, "noise": noise, "noise_mode": noise_mode,
            "epochs": epochs, "seeds": seeds,
            **_summary(m, 0), "wall_s": time.perf_counter() - t,
@@ -112,7 +117,8 @@ def sweep(key: jax.Array, out: pathlib.Path, field: str, values: list[int], seed
                          "('hidden', 'replication')")
     fixed = {k: v for k, v in BASE.items() if k != field}
     t = time.perf_counter()
-    m = run_grid(key, {**fixed, "epochs": epochs}, {field: [int(v) for v in values]}, seeds)
+    m = run_grid(key, {**fixed, "epochs": epochs, "eval_every": _eval_every(epochs)},
+                 {field: [int(v) for v in values]}, seeds)
     points = [{field: int(v), **_summary(m, i)} for i, v in enumerate(values)]
     res = {"field": field, "values": [int(v) for v in values], "fixed": BASE, "seeds": seeds,
            "epochs": epochs, "points": points, "wall_s": time.perf_counter() - t,
