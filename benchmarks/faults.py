@@ -1,0 +1,317 @@
+"""Fault injection on tiny sweeps and saved modules: is anything lost, mixed or silently wrong?
+
+Each fault is injected, then the run is resumed (sweeps) or loaded (modules); the outcome is
+one of ``identical`` (the resumed run's metrics equal an uninterrupted run's, bit for bit),
+``refused`` (a clear error, exit code 2 on the command line, the files left as they were) or
+``WRONG`` (anything else: a silent difference, a traceback, a lost file). The goal is zero
+``WRONG``.
+
+- SIGKILL at ``--kills`` random moments of a sweep, then ``--resume``;
+- SIGINT at ``--interrupts`` random moments (exit 130, the resume command printed), then it;
+- each file of a sweep step in turn flipped (4 bytes), truncated (half) and deleted, then
+  ``--resume`` (it must fall back to the intact step before and say so);
+- each file of saved modules in turn flipped, truncated and deleted, then ``load``;
+- the checkpoint config edited, deleted, made binary; the modules' config.json edited;
+- a second writer (``--overwrite``) while a sweep runs;
+- a full disk (``RLIMIT_FSIZE``) while writing checkpoints and while writing results.
+
+Usage:  python benchmarks/faults.py [--kills 20] [--interrupts 5] [--seed 0]
+Writes results/benchmarks/faults.json and prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import pathlib
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+
+import numpy as np
+
+HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+import grounding_jax as gj  # noqa: E402
+from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.checkpoint import CheckpointError  # noqa: E402
+
+SWEEP = textwrap.dedent("""
+    module = "al"
+    seeds = 2
+    chunk = 1
+    metric = "td_error"
+    [params]
+    phase1_episodes = 2
+    phase2_episodes = 30
+    actor_hidden = 4
+    critic_hidden = 4
+    episode_length = 10
+    [grid]
+    critic_lr = [0.01, 0.02]
+""")
+CMD = [sys.executable, "-m", "grounding_jax.sweep", "s.toml", "--out", "out", "--no-progress"]
+
+
+def _env() -> dict:
+    return {**os.environ, "GROUNDING_JAX_THREADS": "2"}
+
+
+#: runs argv[2:] with files limited to argv[1] bytes (a full disk: writes past it get EFBIG)
+LIMITED = ("import os, resource, sys; n = int(sys.argv[1]); "
+           "resource.setrlimit(resource.RLIMIT_FSIZE, (n, n)); os.execv(sys.argv[2], sys.argv[2:])")
+
+
+def _run(folder: pathlib.Path, *extra: str, limit: int | None = None
+         ) -> subprocess.CompletedProcess:
+    cmd = [*CMD, *extra]
+    if limit:
+        cmd = [sys.executable, "-c", LIMITED, str(limit), *cmd]
+    return subprocess.run(cmd, cwd=folder, env=_env(), capture_output=True, text=True,
+                          timeout=900)
+
+
+def _metrics(folder: pathlib.Path) -> dict:
+    with np.load(folder / "out" / "s" / "metrics.npz") as f:
+        return {k: f[k] for k in f.files}
+
+
+def _same(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
+
+
+def _files(folder: pathlib.Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != ".lock"}
+
+
+def _clean_error(r: subprocess.CompletedProcess) -> bool:
+    return (r.returncode == 2 and "Traceback" not in r.stderr
+            and "Event loop is closed" not in r.stderr
+            and sum(ln.startswith("error:") for ln in r.stderr.splitlines()) == 1)
+
+
+def _damage(path: pathlib.Path, fault: str) -> None:
+    data = bytearray(path.read_bytes())
+    if fault == "flip":
+        for i in range(4):
+            if data:
+                data[(len(data) * (2 * i + 1)) // 8] ^= 0x20
+        path.write_bytes(bytes(data))
+    elif fault == "truncate":
+        path.write_bytes(bytes(data[: len(data) // 2]))
+    else:
+        path.unlink()
+
+
+def _fresh(root: pathlib.Path, name: str) -> pathlib.Path:
+    d = root / name
+    d.mkdir()
+    (d / "s.toml").write_text(SWEEP)
+    return d
+
+
+def signals(root: pathlib.Path, whole: dict, wall: float, n: int, sig: int, rng
+            ) -> list[dict]:
+    """``n`` runs, each sent ``sig`` at a random moment, then resumed."""
+    rows = []
+    for i in range(n):
+        d = _fresh(root, f"{signal.Signals(sig).name}-{i}")
+        at = rng.uniform(0.3, wall)
+        proc = subprocess.Popen(CMD, cwd=d, env=_env(), stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+        time.sleep(at)
+        ended_first = proc.poll() is not None
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=300)
+        clean = sig == signal.SIGKILL or ended_first or (
+            proc.returncode == 128 + sig and "Traceback" not in err and "--resume" in err)
+        r = _run(d, "--resume")
+        ok = clean and r.returncode == 0 and _same(_metrics(d), whole)
+        rows.append({"fault": signal.Signals(sig).name, "at_s": round(at, 2),
+                     "ended_before": ended_first, "rc": proc.returncode,
+                     "outcome": "identical" if ok else "WRONG"})
+        shutil.rmtree(d)
+    return rows
+
+
+def sweep_files(root: pathlib.Path, done: pathlib.Path, whole: dict) -> list[dict]:
+    """Each file of the newest step (and the group's config) flipped, truncated, deleted."""
+    from grounding_jax import sweep
+
+    group = done / "out" / "s" / "checkpoints" / "group0"
+    newest = max(int(p.name) for p in (group / "steps").iterdir() if p.name.isdigit())
+    names = sorted(p.relative_to(group).as_posix()
+                   for p in (group / "steps" / str(newest)).rglob("*") if p.is_file())
+    rows = []
+    spec = sweep.load_spec(done / "s.toml")
+    for name in [*names, "config.json"]:
+        for fault in ("flip", "truncate", "delete"):
+            d = root / "files"
+            shutil.copytree(done, d)
+            _damage(d / "out" / "s" / "checkpoints" / "group0" / name, fault)
+            before = _files(d / "out" / "s" / "checkpoints")
+            try:  # reading without resuming (as load does) must refuse
+                sweep.trained_agents(spec, d / "out")
+                read = "WRONG"
+            except CheckpointError:
+                read = "refused"
+            r = _run(d, "--resume")
+            if name == "config.json":
+                ok = _clean_error(r) and _files(d / "out" / "s" / "checkpoints") == before
+                outcome = "refused" if ok else "WRONG"
+            else:
+                ok = (r.returncode == 0 and "trying the step before it" in r.stderr
+                      and "Traceback" not in r.stderr and _same(_metrics(d), whole))
+                outcome = "identical" if ok else "WRONG"
+            rows.append({"fault": f"sweep step file {fault}", "file": name,
+                         "read": read, "outcome": outcome if read == "refused" else "WRONG"})
+            shutil.rmtree(d)
+    return rows
+
+
+def module_files(root: pathlib.Path) -> list[dict]:
+    """Each file of the committed quick modules flipped, truncated, deleted; then load."""
+    src = HERE.parent / "results" / "quick" / "modules"
+    names = sorted(p.relative_to(src).as_posix() for p in src.rglob("*") if p.is_file())
+    rows = []
+    for name in names:
+        for fault in ("flip", "truncate", "delete"):
+            d = root / "modules"
+            shutil.copytree(src, d)
+            _damage(d / name, fault)
+            before = _files(d)
+            try:
+                gj.load(d)
+                outcome = "WRONG"
+            except CheckpointError:
+                outcome = "refused" if _files(d) == before else "WRONG"
+            rows.append({"fault": f"modules file {fault}", "file": name, "outcome": outcome})
+            shutil.rmtree(d)
+    return rows
+
+
+def configs(root: pathlib.Path, done: pathlib.Path) -> list[dict]:
+    rows = []
+    cases = {"edited (critic_lr)": lambda t: t.replace("0.02", "0.03"),
+             "binary": lambda t: None, "deleted": lambda t: ""}
+    for what, edit in cases.items():
+        d = root / "cfg"
+        shutil.copytree(done, d)
+        cfg = d / "out" / "s" / "checkpoints" / "group0" / "config.json"
+        new = edit(cfg.read_text())
+        if new is None:
+            cfg.write_bytes(bytes(range(256)))
+        elif new == "":
+            cfg.unlink()
+        else:
+            cfg.write_text(new)
+        before = _files(d / "out" / "s" / "checkpoints")
+        r = _run(d, "--resume", "--set", "critic_lr=0.01,0.03")
+        ok = _clean_error(r) and _files(d / "out" / "s" / "checkpoints") == before
+        rows.append({"fault": f"sweep config {what}", "outcome": "refused" if ok else "WRONG"})
+        shutil.rmtree(d)
+    d = root / "mcfg"
+    shutil.copytree(HERE.parent / "results" / "quick" / "modules", d)
+    cfg = json.loads((d / "config.json").read_text())
+    cfg["config"]["tl"]["hidden"] = 7
+    (d / "config.json").write_text(json.dumps(cfg))
+    try:
+        gj.load(d)
+        outcome = "WRONG"
+    except CheckpointError:
+        outcome = "refused"
+    rows.append({"fault": "modules config.json edited (TL hidden 50 -> 7)", "outcome": outcome})
+    shutil.rmtree(d)
+    return rows
+
+
+def writers(root: pathlib.Path, whole: dict) -> list[dict]:
+    d = _fresh(root, "writers")
+    first = subprocess.Popen(CMD, cwd=d, env=_env(), stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True)
+    while not (d / "out" / "s" / "checkpoints").exists() and first.poll() is None:
+        time.sleep(0.05)
+    second = _run(d, "--overwrite")
+    first.communicate(timeout=600)
+    ok = (_clean_error(second) and f"pid {first.pid}" in second.stderr
+          and first.returncode == 0 and _same(_metrics(d), whole))
+    shutil.rmtree(d)
+    return [{"fault": "second writer (--overwrite) while a sweep runs",
+             "outcome": "refused" if ok else "WRONG"}]
+
+
+def disk(root: pathlib.Path, done: pathlib.Path, whole: dict) -> list[dict]:
+    rows = []
+    for limit, what in ((2_000, "checkpoint"), (30_000, "checkpoint"), (4_000, "results")):
+        d = root / "disk"
+        if what == "results":
+            shutil.copytree(done, d)
+        else:
+            d = _fresh(root, "disk")
+        before = _files(d / "out") if (d / "out").exists() else {}
+        r = _run(d, *(["--resume"] if what == "results" else []), limit=limit)
+        if what == "results":
+            ok = _clean_error(r) and _files(d / "out") == before
+        else:  # every step left is sealed; resuming without the limit ends identical
+            steps = d / "out" / "s" / "checkpoints" / "group0" / "steps"
+            sealed = all((p / "manifest.json").is_file() for p in steps.iterdir()
+                         if p.name.isdigit()) if steps.exists() else True
+            again = _run(d, "--resume")
+            ok = (_clean_error(r) and sealed and again.returncode == 0
+                  and _same(_metrics(d), whole))
+        rows.append({"fault": f"disk full ({limit} B) while writing {what}s",
+                     "outcome": ("refused" if what == "results" else "identical") if ok
+                     else "WRONG"})
+        shutil.rmtree(d)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--kills", type=int, default=20)
+    ap.add_argument("--interrupts", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=str(HERE.parent / "results" / "benchmarks" /
+                                         "faults.json"))
+    args = ap.parse_args()
+    gj.enable_compilation_cache()
+    rng = random.Random(args.seed)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = pathlib.Path(tmp)
+        done = _fresh(root, "whole")
+        t = time.perf_counter()
+        r = _run(done)
+        wall = time.perf_counter() - t
+        assert r.returncode == 0, r.stderr[-3000:]
+        whole = _metrics(done)
+        rows = [*signals(root, whole, wall, args.kills, signal.SIGKILL, rng),
+                *signals(root, whole, wall, args.interrupts, signal.SIGINT, rng),
+                *sweep_files(root, done, whole), *module_files(root),
+                *configs(root, done), *writers(root, whole), *disk(root, done, whole)]
+    table = collections.defaultdict(collections.Counter)
+    for row in rows:
+        table[row["fault"]][row["outcome"]] += 1
+    summary = [{"fault": f, "injected": sum(c.values()), **dict(c)} for f, c in table.items()]
+    out = {"rows": rows, "summary": summary, "wrong": sum(r["outcome"] == "WRONG" for r in rows),
+           "injected": len(rows), "whole_run_s": wall, "wall_s": time.perf_counter() - t0,
+           "seed": args.seed, "libraries": library_versions()}
+    atomic_write_text(pathlib.Path(args.out), json.dumps(out, indent=1) + "\n")
+    print("| fault | injected | identical | refused | wrong |\n|---|---|---|---|---|")
+    for s in summary:
+        print(f"| {s['fault']} | {s['injected']} | {s.get('identical', 0)} | "
+              f"{s.get('refused', 0)} | {s.get('WRONG', 0)} |")
+    print(f"\n{out['injected']} faults injected, {out['wrong']} wrong; wrote {args.out} "
+          f"({out['wall_s']:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
