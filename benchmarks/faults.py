@@ -57,6 +57,7 @@ SWEEP = textwrap.dedent("""
     [grid]
     critic_lr = [0.01, 0.02]
 """)
+EPISODES = 32  # phase1_episodes + phase2_episodes of SWEEP
 CMD = [sys.executable, "-m", "grounding_jax.sweep", "s.toml", "--out", "out", "--no-progress"]
 
 
@@ -118,17 +119,33 @@ def _fresh(root: pathlib.Path, name: str) -> pathlib.Path:
     return d
 
 
-def signals(root: pathlib.Path, whole: dict, wall: float, n: int, sig: int, rng
-            ) -> list[dict]:
+def signals(root: pathlib.Path, whole: dict, n: int, sig: int, rng) -> list[dict]:
     """``n`` runs, each sent ``sig`` at a random moment, then resumed."""
     rows = []
     for i in range(n):
         d = _fresh(root, f"{signal.Signals(sig).name}-{i}")
-        at = rng.uniform(0.3, wall)
+        # a random moment of the run: while it starts (1 in 5), else after a random number of
+        # checkpoints plus up to 60 ms (landing anywhere in an episode or a save)
+        target = 0 if rng.random() < 0.2 else rng.randint(1, EPISODES - 1)
+        jitter = rng.uniform(0.0, 0.06)
+        steps = d / "out" / "s" / "checkpoints" / "group0" / "steps"
         proc = subprocess.Popen(CMD, cwd=d, env=_env(), stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
-        time.sleep(at)
+        t = time.perf_counter()
+        if target == 0:
+            time.sleep(rng.uniform(0.3, 3.0))
+        else:
+            while proc.poll() is None and not (steps.is_dir() and max(
+                    (int(p.name) for p in steps.iterdir() if p.name.isdigit()),
+                    default=0) >= target):
+                time.sleep(0.005)
+            time.sleep(jitter)
+        at = time.perf_counter() - t
         ended_first = proc.poll() is not None
+        sealed = sum((p / "manifest.json").is_file() for p in steps.iterdir()
+                     if p.name.isdigit()) if steps.is_dir() else 0
+        newest = max((int(p.name) for p in steps.iterdir() if p.name.isdigit()),
+                     default=0) if steps.is_dir() else 0
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=300)
         clean = sig == signal.SIGKILL or ended_first or (
@@ -136,8 +153,11 @@ def signals(root: pathlib.Path, whole: dict, wall: float, n: int, sig: int, rng
         r = _run(d, "--resume")
         ok = clean and r.returncode == 0 and _same(_metrics(d), whole)
         rows.append({"fault": signal.Signals(sig).name, "at_s": round(at, 2),
-                     "ended_before": ended_first, "rc": proc.returncode,
+                     "ended_before": ended_first, "episodes_done": newest,
+                     "sealed_steps": sealed, "rc": proc.returncode,
                      "outcome": "identical" if ok else "WRONG"})
+        print(f"{signal.Signals(sig).name} at {at:.2f} s (episode {newest}): "
+              f"{rows[-1]['outcome']}", flush=True)
         shutil.rmtree(d)
     return rows
 
@@ -171,7 +191,8 @@ def sweep_files(root: pathlib.Path, done: pathlib.Path, whole: dict) -> list[dic
                 ok = (r.returncode == 0 and "trying the step before it" in r.stderr
                       and "Traceback" not in r.stderr and _same(_metrics(d), whole))
                 outcome = "identical" if ok else "WRONG"
-            rows.append({"fault": f"sweep step file {fault}", "file": name,
+            kind = "sweep group config.json" if name == "config.json" else "sweep step file"
+            rows.append({"fault": f"{kind} {fault}", "file": name,
                          "read": read, "outcome": outcome if read == "refused" else "WRONG"})
             shutil.rmtree(d)
     return rows
@@ -267,7 +288,8 @@ def disk(root: pathlib.Path, done: pathlib.Path, whole: dict) -> list[dict]:
             again = _run(d, "--resume")
             ok = (_clean_error(r) and sealed and again.returncode == 0
                   and _same(_metrics(d), whole))
-        rows.append({"fault": f"disk full ({limit} B) while writing {what}s",
+        rows.append({"fault": f"disk full ({limit} B) while writing "
+                              f"{'results' if what == 'results' else 'checkpoints'}",
                      "outcome": ("refused" if what == "results" else "identical") if ok
                      else "WRONG"})
         shutil.rmtree(d)
@@ -293,22 +315,29 @@ def main() -> None:
         wall = time.perf_counter() - t
         assert r.returncode == 0, r.stderr[-3000:]
         whole = _metrics(done)
-        rows = [*signals(root, whole, wall, args.kills, signal.SIGKILL, rng),
-                *signals(root, whole, wall, args.interrupts, signal.SIGINT, rng),
+        rows = [*signals(root, whole, args.kills, signal.SIGKILL, rng),
+                *signals(root, whole, args.interrupts, signal.SIGINT, rng),
                 *sweep_files(root, done, whole), *module_files(root),
                 *configs(root, done), *writers(root, whole), *disk(root, done, whole)]
     table = collections.defaultdict(collections.Counter)
     for row in rows:
         table[row["fault"]][row["outcome"]] += 1
     summary = [{"fault": f, "injected": sum(c.values()), **dict(c)} for f, c in table.items()]
+    kills = [r for r in rows if r["fault"] in ("SIGKILL", "SIGINT")]
+    landed = {"before the first checkpoint": sum(r["episodes_done"] == 0 and not
+                                                 r["ended_before"] for r in kills),
+              "mid-run": sum(r["episodes_done"] > 0 and not r["ended_before"] for r in kills),
+              "after the run ended": sum(r["ended_before"] for r in kills)}
     out = {"rows": rows, "summary": summary, "wrong": sum(r["outcome"] == "WRONG" for r in rows),
-           "injected": len(rows), "whole_run_s": wall, "wall_s": time.perf_counter() - t0,
+           "injected": len(rows), "signals_landed": landed, "whole_run_s": wall,
+           "wall_s": time.perf_counter() - t0,
            "seed": args.seed, "libraries": library_versions()}
     atomic_write_text(pathlib.Path(args.out), json.dumps(out, indent=1) + "\n")
     print("| fault | injected | identical | refused | wrong |\n|---|---|---|---|---|")
     for s in summary:
         print(f"| {s['fault']} | {s['injected']} | {s.get('identical', 0)} | "
               f"{s.get('refused', 0)} | {s.get('WRONG', 0)} |")
+    print(f"\nsignals landed: {landed}")
     print(f"\n{out['injected']} faults injected, {out['wrong']} wrong; wrote {args.out} "
           f"({out['wall_s']:.0f} s)")
 

@@ -33,6 +33,7 @@ import hashlib
 import json
 import os
 import pathlib
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -233,10 +234,14 @@ class Checkpointer:
         if read_only and not steps.is_dir():
             raise CheckpointError(f"{self.directory}: config.json but no complete checkpoint")
         self.read_only = read_only
+        self.max_to_keep = max_to_keep
+        # old steps are pruned here (after the new one is sealed), not by orbax: with a light
+        # initialisation orbax does not read the steps a killed run left, so it could not
         self.manager = ocp.CheckpointManager(
             steps, options=ocp.CheckpointManagerOptions(
-                max_to_keep=max_to_keep, create=not read_only,
+                max_to_keep=None, create=not read_only,
                 cleanup_tmp_directories=not read_only,  # what a killed save left
+                lightweight_initialize=True,  # steps are listed and checked here, not by orbax
                 enable_async_checkpointing=False))
 
     def __enter__(self) -> Checkpointer:
@@ -278,6 +283,8 @@ class Checkpointer:
                     {"format": MANIFEST_FORMAT, "step": int(step),
                      "config_sha256": self._config_sha, "arrays": arrays,
                      "files": _file_digests(where)}), indent=1) + "\n")
+                for old in self.steps()[self.max_to_keep:]:  # older than the kept ones
+                    shutil.rmtree(self.directory / "steps" / str(old))
             except Exception as e:  # orbax/tensorstore raise many types for an I/O failure
                 kept_msg = (f"step {kept} is kept as it was" if kept is not None else
                             "no earlier step existed")
