@@ -430,9 +430,12 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
 
 
 def main(argv: list[str] | None = None) -> int:
+    from grounding_jax import _guard
+
+    if argv is None:  # the command line: an early Ctrl-C exits cleanly, nothing written yet
+        _guard.quiet_start(["python", "train.py"])
     args = parse_args(argv)
     import grounding_jax as gj
-    from grounding_jax import _guard
     from grounding_jax.checkpoint import CheckpointError
     from grounding_jax.sweep import SweepError
 
@@ -452,13 +455,11 @@ def main(argv: list[str] | None = None) -> int:
               "kept whole", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, _guard.Interrupted) as e:
-        import shlex
-
-        again = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--resume"]
         print(f"\ninterrupted ({'SIGINT' if isinstance(e, KeyboardInterrupt) else e}): the "
               "results and checkpoints written so far are kept; the sweeps continue from "
-              f"their checkpoints with:\n  {shlex.join(['python', 'train.py', *again])} "
-              "--resume", file=sys.stderr, flush=True)
+              "their checkpoints with:\n  "
+              f"{_guard.resume_command(['python', 'train.py'], argv)}", file=sys.stderr,
+              flush=True)
         return _guard.exit_code(e)
 
 

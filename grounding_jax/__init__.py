@@ -7,21 +7,34 @@ the benchmarks switch on JAX's persistent compilation cache with
 
 from __future__ import annotations
 
+import importlib
 import os
 import pathlib
+from typing import TYPE_CHECKING, Any
 
-from grounding_jax.env import (
-    Env,
-    EnvConfig,
-    EnvParams,
-    State,
-    Task,
-    make_env,
-    make_task,
-)
-from grounding_jax.trained import Robot, load
+if TYPE_CHECKING:
+    from grounding_jax.env import Env, EnvConfig, EnvParams, State, Task, make_env, make_task
+    from grounding_jax.trained import Robot, load
 
 __version__ = "0.1.0"
+
+#: the public names, imported on first use: ``import grounding_jax`` stays light, so that a
+#: command-line tool (``python -m grounding_jax.sweep``) can take over SIGINT before JAX loads
+_LAZY = {**{n: "grounding_jax.env" for n in ("Env", "EnvConfig", "EnvParams", "State", "Task",
+                                             "make_env", "make_task")},
+         "Robot": "grounding_jax.trained", "load": "grounding_jax.trained"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'grounding_jax' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
 _CACHE_OFF = ("off", "0", "false", "none")
 

@@ -128,6 +128,35 @@ def handle_interrupts() -> Iterator[None]:
             signal.signal(s, h)
 
 
+def resume_command(prog: list[str], argv: list[str] | None = None) -> str:
+    """The command line that continues this one: ``prog`` with the same arguments, and
+    ``--resume`` instead of ``--overwrite``."""
+    import shlex
+    import sys
+
+    args = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--overwrite"]
+    if "--resume" not in args:
+        args.append("--resume")
+    return shlex.join([*prog, *args])
+
+
+def quiet_start(prog: list[str]) -> None:
+    """A command-line tool's first call, before its heavy imports: SIGINT or SIGTERM while it
+    starts (nothing written yet) exits at once with 130 or 143 and the command to run again,
+    instead of a ``KeyboardInterrupt`` traceback from inside an import. Its main then takes
+    over with :func:`handle_interrupts`."""
+    import sys
+
+    def handler(signum, frame) -> None:
+        print(f"\ninterrupted ({signal.Signals(signum).name}) while starting: nothing was "
+              f"written; continue with:\n  {resume_command(prog)}", file=sys.stderr,
+              flush=True)
+        os._exit(128 + signum)
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, handler)
+
+
 def exit_code(e: BaseException) -> int:
     """The shell's code for a run ended by a signal: 128 + its number (130 SIGINT, 143
     SIGTERM)."""

@@ -34,6 +34,11 @@ Writes ``<out>/<name>/``: ``sweep.json`` (spec, per-point summaries, curves), ``
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # before the heavy imports: an early Ctrl-C exits cleanly
+    from grounding_jax import _guard as _early
+
+    _early.quiet_start(["python", "-m", "grounding_jax.sweep"])
+
 import argparse
 import csv
 import dataclasses
@@ -1091,13 +1096,7 @@ def main(argv: list[str] | None = None) -> int:
 def resume_command(argv: list[str] | None = None) -> str:
     """The command line that continues this one: the same arguments with ``--resume``
     instead of ``--overwrite``."""
-    import shlex
-
-    args = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--overwrite"]
-    if "--resume" not in args:
-        args.append("--resume")
-    return shlex.join([sys.executable.rpartition("/")[2] or "python", "-m",
-                       "grounding_jax.sweep", *args])
+    return _guard.resume_command(["python", "-m", "grounding_jax.sweep"], argv)
 
 
 if __name__ == "__main__":
