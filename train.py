@@ -460,6 +460,8 @@ def main(argv: list[str] | None = None) -> int:
               "their checkpoints with:\n  "
               f"{_guard.resume_command(['python', 'train.py'], argv)}", file=sys.stderr,
               flush=True)
+        if argv is None:  # the command line (not a caller's process): end it now
+            _guard.leave(_guard.exit_code(e))
         return _guard.exit_code(e)
 
 

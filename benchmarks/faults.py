@@ -152,6 +152,8 @@ def signals(root: pathlib.Path, whole: dict, n: int, sig: int, rng) -> list[dict
             proc.returncode == 128 + sig and "Traceback" not in err and "--resume" in err)
         r = _run(d, "--resume")
         ok = clean and r.returncode == 0 and _same(_metrics(d), whole)
+        if not clean:
+            print(err[-1500:], flush=True)
         rows.append({"fault": signal.Signals(sig).name, "at_s": round(at, 2),
                      "ended_before": ended_first, "episodes_done": newest,
                      "sealed_steps": sealed, "rc": proc.returncode,
@@ -194,6 +196,8 @@ def sweep_files(root: pathlib.Path, done: pathlib.Path, whole: dict) -> list[dic
             kind = "sweep group config.json" if name == "config.json" else "sweep step file"
             rows.append({"fault": f"{kind} {fault}", "file": name,
                          "read": read, "outcome": outcome if read == "refused" else "WRONG"})
+            if rows[-1]["outcome"] == "WRONG":
+                rows[-1].update(rc=r.returncode, stderr=r.stderr[-1500:])
             shutil.rmtree(d)
     return rows
 

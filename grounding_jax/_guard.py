@@ -161,3 +161,18 @@ def exit_code(e: BaseException) -> int:
     """The shell's code for a run ended by a signal: 128 + its number (130 SIGINT, 143
     SIGTERM)."""
     return 128 + (e.signum if isinstance(e, Interrupted) else signal.SIGINT)
+
+
+def leave(code: int) -> None:
+    """End an interrupted command-line run now, with ``code``, skipping the interpreter's
+    clean-up: the interrupt may have landed while JAX still runs a dispatched computation
+    (dispatch is asynchronous) that calls into the physics thread pool, and tearing the
+    modules down under it crashed the process (SIGSEGV) after the message was printed.
+    Everything the run wrote is already on disk (checkpoints are sealed before an interrupt
+    takes effect); the kernel releases the folder lock."""
+    import sys
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)

@@ -1078,6 +1078,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\ninterrupted ({'SIGINT' if isinstance(e, KeyboardInterrupt) else e}): the "
               "newest complete checkpoint of each group is kept; continue with:\n  "
               f"{resume_command(argv)}", file=sys.stderr, flush=True)
+        if argv is None:  # the command line (not a caller's process): end it now
+            _guard.leave(_guard.exit_code(e))
         return _guard.exit_code(e)
     folder = pathlib.Path(args.out) / spec.name
     for p in summary["points"]:
