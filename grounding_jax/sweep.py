@@ -40,6 +40,7 @@ if __name__ == "__main__":  # before the heavy imports: an early Ctrl-C exits cl
     _early.quiet_start(["python", "-m", "grounding_jax.sweep"])
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import hashlib
@@ -934,17 +935,14 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
     folder = pathlib.Path(out) / spec.name
     if folder.exists() and not folder.is_dir():
         raise SweepError(f"out: {folder} is a file, not a folder; name another --out")
-    try:
-        lock = _guard.folder_lock(folder, f"sweep {spec.name}")
-        lock.__enter__()
-    except OSError as e:
-        raise SweepError(f"out: cannot write {folder} ({e.strerror or e}); name a writable "
-                         "folder with --out") from None
-    try:
+    with contextlib.ExitStack() as stack:
+        try:
+            stack.enter_context(_guard.folder_lock(folder, f"sweep {spec.name}"))
+        except OSError as e:
+            raise SweepError(f"out: cannot write {folder} ({e.strerror or e}); name a "
+                             "writable folder with --out") from None
         return _run_locked(spec, folder, resume, overwrite, executor, ray_address,
                            show_progress, key)
-    finally:
-        lock.__exit__(None, None, None)
 
 
 def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: bool,
