@@ -132,7 +132,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.settings = _settings(args.profile, args.set)
     except ValueError as e:
         ap.error(str(e))
-    from grounding_jax.physics import BACKENDS
+    from grounding_jax.sim.physics import BACKENDS
 
     if args.backend not in BACKENDS:
         ap.error(f"--backend: unknown value {args.backend!r}; accepted values: {BACKENDS}")
@@ -162,7 +162,7 @@ def env_check(key, env_config) -> list[dict]:
     import numpy as np
 
     import grounding_jax as gj
-    from grounding_jax import rollout, scene, scripted
+    from grounding_jax.sim import rollout, scene, scripted
 
     env = gj.Env(env_config)
 
@@ -199,7 +199,7 @@ def tl_experiments(key, out: pathlib.Path, st: dict) -> dict:
     fresh flips)."""
     import jax
 
-    from grounding_jax import tl_experiments as E
+    from grounding_jax.paper import tl_experiments as E
 
     k_acc, k6, k7, k_fixed, k_fresh = jax.random.split(key, 5)
     ep, seeds = st["tl_epochs"], st["tl_seeds"]
@@ -218,7 +218,7 @@ def tl_experiments(key, out: pathlib.Path, st: dict) -> dict:
 def al_experiments(key, out: pathlib.Path, st: dict, env_config, al_config
                    ) -> tuple[dict, object]:
     """The AL results: success rates, Figs 10, 11, 13, 14 (see ``al_experiments.run``)."""
-    from grounding_jax import al_experiments as E
+    from grounding_jax.paper import al_experiments as E
 
     res, agents = E.run(key, out, seeds=st["al_seeds"], phase1=st["al_phase1"],
                         phase2=st["al_phase2"], no_tricks_episodes=st["al_no_tricks"],
@@ -254,7 +254,8 @@ def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agen
     the free family's robot, ``free_modules``, beside them)."""
     import jax
 
-    from grounding_jax import an, trained
+    from grounding_jax.learn import an
+    from grounding_jax.robot import trained
 
     agent = jax.tree.map(lambda x: x[0], agents)
     res, modules = an.run(key, out, agent, seeds=st["an_seeds"], tl_epochs=st["an_tl_epochs"],
@@ -274,7 +275,7 @@ def beyond(key, key_free, out: pathlib.Path, st: dict, backend: str) -> tuple[di
     """Beyond the paper: the target localizer for objects placed anywhere (``tl_xy``), then
     :func:`beyond_robot`. Returns (results, the modules to save: TL-xy seed 0, the median
     agent)."""
-    from grounding_jax import tl_xy
+    from grounding_jax.learn import tl_xy
 
     cfg = tl_xy.XYConfig(hidden=st["xy_hidden"], steps=st["xy_steps"],
                          eval_every=max(st["xy_steps"] // 10, 1))
@@ -295,9 +296,11 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
     import jax
     import numpy as np
 
-    from grounding_jax import al_experiments, tasks, trained
-    from grounding_jax import beyond as B
-    from grounding_jax.env import Env
+    from grounding_jax.paper import al_eval
+    from grounding_jax.paper import beyond as B
+    from grounding_jax.robot import trained
+    from grounding_jax.sim import tasks
+    from grounding_jax.sim.env import Env
 
     k_train, k_eyes, k_eyes_eval, k_move, k_an = jax.random.split(key_free, 5)
     free, agents = B.train(k_train, st["free_seeds"], st["free_phase1"], st["free_phase2"],
@@ -316,7 +319,7 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
     words = {"eyes": tasks.COLOURS, "eyes_shape": tasks.SHAPES}
     eyes = {part: B.eyes_tasks(looks.localize, k_eyes, st["free_eyes_placements"], w)
             for part, w in words.items()}
-    judge = al_experiments.make_success(Env(modules["env_config"]), batch=eyes["eyes"][0])
+    judge = al_eval.make_success(Env(modules["env_config"]), batch=eyes["eyes"][0])
     for part, (batch, err) in eyes.items():
         eyes_out = judge(jax.tree.map(lambda x: x[None], agent), k_eyes_eval, B.hyper().env,
                          batch=batch)
@@ -340,7 +343,7 @@ def camera_strip(out: pathlib.Path, key) -> dict:
     """One command performed by the loaded robot at a random placement, as a strip of camera
     frames (``out/camera_strip.png``)."""
     import grounding_jax as gj
-    from grounding_jax import beyond as B
+    from grounding_jax.paper import beyond as B
 
     robot = gj.load(out.parent / "modules")
     layout = 3
@@ -358,14 +361,25 @@ def camera_strip(out: pathlib.Path, key) -> dict:
 
 
 def write_results(out: pathlib.Path, result: dict) -> None:
-    """A run's metrics.json, metrics.csv and REPORT.md in ``out`` (each written whole)."""
-    from grounding_jax._io import Staged
-    from grounding_jax.report import metrics_csv, report
+    """A run's metrics.json, metrics.csv and REPORT.md in ``out`` (each written whole), with
+    the strips of the robot acting that are in ``out/robot``."""
+    from grounding_jax.core._io import Staged
+    from grounding_jax.paper.report import metrics_csv, report
+    from grounding_jax.paper.strips import existing_strips
 
     with Staged(out).writing() as staged:  # the three replace the earlier ones together
         staged.write_text("metrics.json", json.dumps(result, indent=2) + "\n")
         staged.write_text("metrics.csv", metrics_csv(result))
-        staged.write_text("REPORT.md", report(result))
+        staged.write_text("REPORT.md", report(result, existing_strips(out)))
+
+
+def robot_strips(out: pathlib.Path) -> None:
+    """The saved robot performing each action, as strips of the third-person camera
+    (``out/robot/<action>.png``, shown first in the REPORT)."""
+    import grounding_jax as gj
+    from grounding_jax.paper.strips import write_strips
+
+    write_strips(gj.load(out / "modules"), out)
 
 
 def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) -> int:
@@ -375,8 +389,8 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
     paper's unchanged, the free family's new) and metrics.json's part, metrics.csv and
     REPORT.md are rewritten, the other parts' results kept."""
     import grounding_jax as gj
-    from grounding_jax import trained
-    from grounding_jax._io import library_versions
+    from grounding_jax.core._io import library_versions
+    from grounding_jax.robot import trained
 
     part = args.only
     metrics, modules_dir = out / "metrics.json", out / "modules"
@@ -430,13 +444,13 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    from grounding_jax import _guard
+    from grounding_jax.core import _guard
 
     if argv is None:  # the command line: an early Ctrl-C exits cleanly, nothing written yet
         _guard.quiet_start(["python", "train.py"])
     args = parse_args(argv)
     import grounding_jax as gj
-    from grounding_jax.checkpoint import CheckpointError
+    from grounding_jax.core.checkpoint import CheckpointError
     from grounding_jax.sweep import SweepError
 
     gj.enable_compilation_cache()
@@ -487,15 +501,16 @@ def _main(args: argparse.Namespace, out: pathlib.Path) -> int:
     import jax
 
     import grounding_jax as gj
-    from grounding_jax._io import atomic_write_text, library_versions
-    from grounding_jax.cacla import CaclaConfig
-    from grounding_jax.env import EnvConfig
-    from grounding_jax.report import report
+    from grounding_jax.core._io import atomic_write_text, library_versions
+    from grounding_jax.learn.cacla import CaclaConfig
+    from grounding_jax.paper.report import report
+    from grounding_jax.paper.strips import existing_strips
+    from grounding_jax.sim.env import EnvConfig
 
     if args.report_only:
         try:
             data = _read_metrics(out / "metrics.json")
-            text = report(data)
+            text = report(data, existing_strips(out))
         except ValueError as e:
             print(f"--report-only: {e}", file=sys.stderr)
             return 2
@@ -533,6 +548,9 @@ def _main(args: argparse.Namespace, out: pathlib.Path) -> int:
                         free_modules)
     extra["strip"] = camera_strip(out / "beyond", k_strip)
     wall["an"] = time.perf_counter() - t
+    t = time.perf_counter()
+    robot_strips(out)
+    wall["strips"] = time.perf_counter() - t
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
               "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "wall_s": wall,

@@ -42,9 +42,14 @@ import reference_cacla  # noqa: E402
 from env_throughput import raw_rollout  # noqa: E402
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import al, al_experiments, physics, scene  # noqa: E402
-from grounding_jax._io import library_versions  # noqa: E402
-from grounding_jax.env import EnvConfig  # noqa: E402
+from grounding_jax.core._io import library_versions  # noqa: E402
+from grounding_jax.learn import al
+from grounding_jax.paper import al_experiments
+from grounding_jax.sim import (
+    physics,
+    scene,  # noqa: E402
+)
+from grounding_jax.sim.env import EnvConfig  # noqa: E402
 
 SUBSTEPS = 10
 HP = dict(al_experiments.TUNED)

@@ -34,8 +34,11 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import physics, scene  # noqa: E402
-from grounding_jax._io import library_versions  # noqa: E402
+from grounding_jax.core._io import library_versions  # noqa: E402
+from grounding_jax.sim import (
+    physics,
+    scene,  # noqa: E402
+)
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 SUBSTEPS = 10

@@ -27,9 +27,9 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import al_experiments as alx  # noqa: E402
-from grounding_jax import tasks  # noqa: E402
-from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.paper import al_eval
+from grounding_jax.sim import tasks  # noqa: E402
 
 #: the layouts the episodes cycle through: all 36
 LAYOUTS = tuple(range(35, -1, -1))
@@ -95,7 +95,7 @@ def episodes(robot, ts, key: int, n: int) -> list[dict]:
         layout = LAYOUTS[i % len(LAYOUTS)]
         out = robot.perform(action, word, layout, placement="random", key=k)
         task = gj.make_task(action, word, layout, ts.name, placement=out["placement"])
-        judged = jax.device_get(alx.episode_success(out["trajectory"], task, task_set=ts))
+        judged = jax.device_get(al_eval.episode_success(out["trajectory"], task, task_set=ts))
         rows.append({"action": action, "word": word, "layout": layout,
                      "success": bool(judged["success"]),
                      "named": list(out["named"]) if out["named"] else None,

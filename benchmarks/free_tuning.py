@@ -21,7 +21,7 @@ Usage:  python benchmarks/free_tuning.py [--agents 8] [--phase1 1000] [--phase2 
         [--hand-scale METRES] [--actor-hidden N] [--critic-hidden N] [--var] [--tag NAME]
 Prints the median agent's success per action (min-max over agents), by slot, and the share of
 episodes that moved a wrong object, at each checkpoint and at the end; writes
-results/benchmarks/free_tuning_<tag>.json (tag: the push reward unless given).
+results/tuning/free_tuning_<tag>.json (tag: the push reward unless given).
 """
 
 from __future__ import annotations
@@ -39,10 +39,14 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import al, beyond, placement, tasks  # noqa: E402
-from grounding_jax import al_experiments as alx  # noqa: E402
-from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
-from grounding_jax.env import Env  # noqa: E402
+from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.learn import al
+from grounding_jax.paper import al_eval, beyond
+from grounding_jax.sim import (
+    placement,
+    tasks,  # noqa: E402
+)
+from grounding_jax.sim.env import Env  # noqa: E402
 
 
 def _pose_push(t, params):
@@ -189,15 +193,15 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error(f"--checkpoints: must lie in 1..{cfg.episodes - 1}, got {bad}")
     env = Env(cfg.env)
     # beyond.make_success's judge, with its tasks kept here for where the targets stand
-    batch = alx.free_tasks(jax.random.key(args.eval_key), args.placements)
-    judge = alx.make_success(env, batch=batch)
+    batch = al_eval.free_tasks(jax.random.key(args.eval_key), args.placements)
+    judge = al_eval.make_success(env, batch=batch)
     target_xy = np.asarray(batch.placement)[np.arange(len(batch.position)),
                                             np.asarray(batch.position), :2]
     curve: dict[str, dict] = {}
 
     def measure(episode: int, agents, _metrics) -> None:
         out = jax.device_get(judge(agents, jax.random.key(0), hp.env))
-        table = alx.success_table(out)
+        table = al_eval.success_table(out)
         act = np.asarray(out["action"])
         wrong = {a: float(np.asarray(out["wrong_moved"])[..., act == i].mean())
                  for i, a in enumerate(tasks.FREE.action_names)}
@@ -238,7 +242,7 @@ def main(argv: list[str] | None = None) -> dict:
            "touch_reach_shift": float(touch_map.get("reach_shift", 0.0)),
            "libraries": library_versions()}
     print(f"training and judging {train_s:.0f} s")
-    out_dir = pathlib.Path("results/benchmarks")
+    out_dir = pathlib.Path("results/tuning")
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / f"free_tuning_{tag}.json", json.dumps(res, indent=2) + "\n")
     return res

@@ -1,7 +1,7 @@
 """Sequential reference of the action learner: one agent at a time, NumPy networks, C MuJoCo
 ``mj_step`` in a Python loop -- the way the paper's era would run it.
 
-It is the same algorithm as ``grounding_jax.al`` (same env semantics, networks, CACLA rules,
+It is the same algorithm as ``grounding_jax.learn.al`` (same env semantics, networks, CACLA rules,
 schedule), written independently of JAX, and serves two purposes:
 
 - a correctness cross-check: its learning curves over a few seeds must fall within the spread of
@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 import grounding_jax as gj
-from grounding_jax import scene
+from grounding_jax.sim import scene
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
@@ -64,7 +64,7 @@ class Net:
 
 # ------------------------------------------------------------------------------------- env
 class SequentialEnv:
-    """The point/touch/push env of ``grounding_jax.env`` on one ``MjData``, stepped with
+    """The point/touch/push env of ``grounding_jax.sim.env`` on one ``MjData``, stepped with
     ``mj_step`` in a Python loop (float64 throughout)."""
 
     def __init__(self, substeps: int = 10, episode_length: int = 75) -> None:
@@ -149,9 +149,10 @@ def train(seed: int, phase1_episodes: int = 150, phase2_episodes: int = 300,
           executed_target: float = 0.0) -> tuple[dict[str, np.ndarray], dict]:
     """Train one agent. Returns (per-episode metrics, timing: total/physics seconds, steps).
 
-    The decays and ``executed_target`` mean what they mean in ``grounding_jax.cacla.CaclaHyper``:
-    a rate is ``v * decay ** (episode / (episodes - 1))``; with ``executed_target`` the actor
-    is pulled toward the executed (limit-clipped) action instead of the explored one."""
+    The decays and ``executed_target`` mean what they mean in
+    ``grounding_jax.learn.cacla.CaclaHyper``: a rate is ``v * decay ** (episode / (episodes -
+    1))``; with ``executed_target`` the actor is pulled toward the executed (limit-clipped)
+    action instead of the explored one."""
     rng = np.random.default_rng(seed)
     env = SequentialEnv(substeps)
     actor = Net.init(rng, 11, 40, 4, out_tanh=True)
@@ -220,8 +221,9 @@ def main(argv: list[str] | None = None) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from grounding_jax import al, al_experiments
-    from grounding_jax._io import atomic_write_text
+    from grounding_jax.core._io import atomic_write_text
+    from grounding_jax.learn import al
+    from grounding_jax.paper import al_experiments
 
     hp_ref = {**al_experiments.TUNED, **al_experiments.TUNED_AL}  # the shipped settings
     refs = [train(s, args.phase1, args.phase2, **hp_ref) for s in range(args.seeds)]

@@ -37,11 +37,14 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from grounding_jax import al_experiments as alx  # noqa: E402
-from grounding_jax import beyond, ik, scene  # noqa: E402
-from grounding_jax import placement as free  # noqa: E402
-from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
-from grounding_jax.env import Env, EnvParams, scale_joints  # noqa: E402
+from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.paper import al_eval, beyond
+from grounding_jax.sim import (
+    ik,
+    scene,  # noqa: E402
+)
+from grounding_jax.sim import placement as free  # noqa: E402
+from grounding_jax.sim.env import Env, EnvParams, scale_joints  # noqa: E402
 
 #: (gain, via the pointing pose, stop on touch)
 ROWS = ((3.0, False, False), (1.0, False, False), (1.0, True, False), (3.0, False, True),
@@ -63,7 +66,8 @@ def main(argv: list[str] | None = None) -> dict:
     push = args.action == "push"
     env = Env(beyond.env_config()).with_episode_length(STEPS)
     params = beyond.params() if push else EnvParams()
-    batch = alx.free_tasks(jax.random.key(args.key), args.placements, actions=(2 if push else 1,))
+    batch = al_eval.free_tasks(jax.random.key(args.key), args.placements,
+                               actions=(2 if push else 1,))
     n = int(batch.action.shape[0])
     xy = np.asarray(batch.placement)[np.arange(n), np.asarray(batch.position), :2]
     shape = np.argsort(scene.layout_shape_slots(), axis=1)[np.asarray(batch.layout),
@@ -88,7 +92,7 @@ def main(argv: list[str] | None = None) -> dict:
                 s = env.step(s, a, params)
                 return s, s
             _, traj = jax.lax.scan(body, env.reset(key, task, params), jnp.arange(STEPS))
-            return alx.episode_success(traj, task, task_set=env.tasks)
+            return al_eval.episode_success(traj, task, task_set=env.tasks)
         return jax.vmap(episode)(jax.random.split(jax.random.key(0), n), batch, goal_touch,
                                  goal_point)
 

@@ -30,8 +30,14 @@ import numpy as np
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import al_experiments, physics, rollout, scene, scripted  # noqa: E402
-from grounding_jax.env import EnvConfig, scale_joints  # noqa: E402
+from grounding_jax.paper import al_experiments
+from grounding_jax.sim import (
+    physics,
+    rollout,
+    scene,
+    scripted,  # noqa: E402
+)
+from grounding_jax.sim.env import EnvConfig, scale_joints  # noqa: E402
 
 
 def settling(substeps: int) -> list[float]:

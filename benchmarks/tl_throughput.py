@@ -27,7 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import tl, tl_data  # noqa: E402
+from grounding_jax.learn import tl
+from grounding_jax.sim import tl_data  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 HIDDEN = [5, 10, 20, 30, 40, 50, 75, 100]

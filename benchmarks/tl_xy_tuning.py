@@ -9,7 +9,7 @@ split): the README's rows come from ``--key 0`` and ``--key 1``.
 
 Usage:  python benchmarks/tl_xy_tuning.py [--key 0] [--steps 60000]
         [--grid 1e-3:1,1e-3:0.01,3e-3:0.01]
-Prints each point's error; writes results/benchmarks/tl_xy_tuning_k<key>.json.
+Prints each point's error; writes results/tuning/tl_xy_tuning_k<key>.json.
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax import tasks, tl_xy  # noqa: E402
-from grounding_jax._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.learn import tl_xy  # noqa: E402
+from grounding_jax.sim import tasks
 
 
 def _grid(text: str) -> list[tuple[float, float]]:
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> dict:
               f"cm; shape words {row['shape_median_cm']:.2f} / {row['shape_p95_cm']:.2f}; "
               f"colour words {row['colour_median_cm']:.2f} / {row['colour_p95_cm']:.2f}",
               flush=True)
-    out = pathlib.Path("results/benchmarks")
+    out = pathlib.Path("results/tuning")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / f"tl_xy_tuning_k{args.key}.json", json.dumps(res, indent=2) + "\n")
     return res

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import rollout, scripted
+from grounding_jax.sim import rollout, scripted
 
 # share compiles between tests (and runs) as the CLIs do; CI points GROUNDING_JAX_CACHE at an
 # empty folder
@@ -25,7 +25,7 @@ def _scripted_runner(env: gj.Env):
 @pytest.fixture(scope="session")
 def renderer():
     """The eye camera's renderer; the test is skipped (and says why) without headless GL."""
-    from grounding_jax import vision
+    from grounding_jax.sim import vision
 
     try:
         return vision.eye_renderer()

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from flax import struct
 
-from grounding_jax import al, cacla, learners, scene
-from grounding_jax import env as env_mod
-from grounding_jax._checks import POSITIVE
+from grounding_jax.core._checks import POSITIVE
+from grounding_jax.learn import al, cacla, learners
+from grounding_jax.sim import env as env_mod
+from grounding_jax.sim import scene
 
 SMALL = al.ALConfig(phase1_episodes=2, phase2_episodes=2)
 
@@ -217,7 +218,7 @@ def test_another_learner_trains_and_evaluates_through_the_seam():
 
 
 def test_a_config_float_rule_refuses_strings_bools_and_non_finite_values():
-    from grounding_jax._checks import check_config, integer_at_least
+    from grounding_jax.core._checks import check_config, integer_at_least
 
     @dataclasses.dataclass(frozen=True)
     class Cfg:

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from grounding_jax import al_experiments as ax
-from grounding_jax.env import Task
+from grounding_jax.paper import al_eval
+from grounding_jax.sim.env import Task
 
 N = 100
 
@@ -51,12 +51,12 @@ def _task(action: int) -> Task:
     (2, _traj(moved=0.05, touched_at=(5,)), 1.0),  # push ignores when it touched
 ])
 def test_episode_success(action, traj, ok):
-    assert float(ax.episode_success(traj, _task(action))["success"]) == ok
+    assert float(al_eval.episode_success(traj, _task(action))["success"]) == ok
 
 
 def test_switch_success_counts_only_what_moved_after_the_switch():
     # objects: [steps, shape, 3] in qpos; the target of (push, left, layout 0) is the box
-    from grounding_jax import scene
+    from grounding_jax.sim import scene
     idx = scene.index()
     qpos = np.zeros((N, idx.nq), np.float32)
     box, sphere = (idx.object_qpos[scene.SHAPES.index(s), 0] for s in ("box", "sphere"))
@@ -69,7 +69,7 @@ def test_switch_success_counts_only_what_moved_after_the_switch():
                                        "touched_target": jnp.zeros(N),
                                        "target_moved": jnp.zeros(N)})
     def judge(traj, task):  # under jit: the task is traced, as in make_switch_success
-        f = jax.jit(lambda q, tk: ax.episode_success(types.SimpleNamespace(
+        f = jax.jit(lambda q, tk: al_eval.episode_success(types.SimpleNamespace(
             **{**vars(traj), "qpos": q}), tk, since=20))
         return f(traj.qpos, task)
 
@@ -81,7 +81,7 @@ def test_switch_success_counts_only_what_moved_after_the_switch():
 
 
 def test_switch_pairs_change_the_action_or_the_position():
-    first, second = ax.switch_pairs((0,))
+    first, second = al_eval.switch_pairs((0,))
     assert first.action.shape == (36,)
     same_a = np.asarray(first.action) == np.asarray(second.action)
     same_p = np.asarray(first.position) == np.asarray(second.position)
@@ -89,12 +89,12 @@ def test_switch_pairs_change_the_action_or_the_position():
 
 
 def test_success_table_groups_by_action_and_task():
-    tasks = ax.all_tasks((0, 6))
+    tasks = al_eval.all_tasks((0, 6))
     assert tasks.action.shape == (18,)
     s = np.zeros((2, 1, 18), np.float32)
     s[:, :, np.asarray(tasks.action) == 2] = 1.0  # every push succeeded
     s[0, :, (np.asarray(tasks.action) == 0) & (np.asarray(tasks.position) == 1)] = 1.0
-    t = ax.success_table({"success": s, "action": tasks.action, "position": tasks.position})
+    t = al_eval.success_table({"success": s, "action": tasks.action, "position": tasks.position})
     # by_action is the median agent's rate (agent 0: 2/6 of point, agent 1: 0)
     assert t["by_action"] == {"point": pytest.approx(1 / 6), "touch": 0.0, "push": 1.0}
     assert t["spread"]["point"][0] == 0.0 and t["spread"]["point"][-1] == pytest.approx(2 / 6)

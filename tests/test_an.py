@@ -7,7 +7,9 @@ import jax
 import numpy as np
 import pytest
 
-from grounding_jax import al, al_experiments, an, esn, tl_data
+from grounding_jax.learn import al, an, esn
+from grounding_jax.paper import al_experiments
+from grounding_jax.sim import tl_data
 
 
 @pytest.fixture(scope="module")

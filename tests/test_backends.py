@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import rollout, scene, scripted
+from grounding_jax.sim import rollout, scene, scripted
 
 pytestmark = pytest.mark.mjx
 IDX = scene.index()

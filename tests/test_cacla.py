@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from grounding_jax import cacla
+from grounding_jax.learn import cacla
 
 CFG = cacla.CaclaConfig()
 CFG_SHAPES = {"w1": (11, 40)}

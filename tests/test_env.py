@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import env as env_mod
-from grounding_jax import scene
+from grounding_jax.sim import env as env_mod
+from grounding_jax.sim import scene
 
 
 def _paper_eq1(deg: np.ndarray) -> np.ndarray:
@@ -47,7 +47,8 @@ def test_reset_observation(env_c):
 
 
 def test_the_task_vocabulary_sets_the_observation_layout_and_the_sizes(env_c):
-    from grounding_jax import cacla, esn, tasks
+    from grounding_jax.learn import cacla, esn
+    from grounding_jax.sim import tasks
 
     st = env_c.reset(jax.random.key(0), gj.make_task("touch", "right", 5))
     assert st.obs.shape == (tasks.OBS_SIZE,)
@@ -67,7 +68,9 @@ def test_the_task_vocabulary_sets_the_observation_layout_and_the_sizes(env_c):
 def test_a_fourth_action_is_one_task_set_and_every_size_follows():
     """A dummy fourth action ("hover": stay 10 cm from the target) defined only in a task
     set: env, learner, ESN, the trainer's task draw and the success rule all follow."""
-    from grounding_jax import al, al_experiments, cacla, esn, tasks
+    from grounding_jax.learn import al, cacla, esn
+    from grounding_jax.paper import al_eval
+    from grounding_jax.sim import tasks
 
     hover = tasks.Action(
         "hover", reward=lambda t, p: -jnp.abs(t["palm_target_dist"] - 0.1),
@@ -108,7 +111,7 @@ def test_a_fourth_action_is_one_task_set_and_every_size_follows():
         esn.ESNConfig(task_set="test_four", n_out=9)
 
     traj = jax.tree.map(lambda x: x[None], nxt)
-    ok = al_experiments.episode_success(traj, task, task_set=four)
+    ok = al_eval.episode_success(traj, task, task_set=four)
     assert float(ok["success"]) == float(float(nxt.metrics["target_moved"]) < 0.005) == 1.0
     with pytest.raises(ValueError, match="task_set: unknown value 'nope'"):
         gj.make_env("mujoco", task_set="nope")

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from grounding_jax import esn, som
+from grounding_jax.learn import esn, som
 
 
 @pytest.fixture(scope="module")

@@ -11,10 +11,13 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import al, beyond, cacla, esn, ik, scene, tasks, tl, tl_xy, trained
-from grounding_jax import placement as free
-from grounding_jax.checkpoint import CheckpointError
-from grounding_jax.env import scale_joints
+from grounding_jax.core.checkpoint import CheckpointError
+from grounding_jax.learn import al, cacla, esn, tl, tl_xy
+from grounding_jax.paper import beyond
+from grounding_jax.robot import trained
+from grounding_jax.sim import ik, scene, tasks
+from grounding_jax.sim import placement as free
+from grounding_jax.sim.env import scale_joints
 
 
 @pytest.fixture(scope="module")
@@ -350,7 +353,8 @@ def test_the_saved_agent_is_the_one_that_clears_every_goal_by_most():
 
 def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp_path,
                                                                              monkeypatch):
-    from grounding_jax import al_experiments, sweep
+    from grounding_jax import sweep
+    from grounding_jax.paper import al_experiments
 
     monkeypatch.setattr(al_experiments, "FREE_EVAL_PLACEMENTS", 1)  # 9 + 3 episodes per agent
     spec = sweep.parse_spec({
@@ -358,7 +362,7 @@ def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp
         "params": {"phase1_episodes": 1, "phase2_episodes": 1, "actor_hidden": 4,
                    "critic_hidden": 4, "episode_length": 5, "placement": "random"},
         "grid": {"gamma": [0.0, 0.3]}})
-    cfg = sweep._module_config(spec, spec.groups()[0][0])
+    cfg = sweep.module_config(spec, spec.groups()[0][0])
     assert cfg.placement == "random"
     assert cfg.env.task_set == cfg.learner.task_set == beyond.FREE_LEARNER.task_set
     assert cfg.learner.heads == beyond.FREE_LEARNER.heads  # the free family's networks

@@ -59,7 +59,7 @@ def installed(tmp_path_factory) -> pathlib.Path:
     (wheel,) = (tmp / "dist").glob("grounding_jax-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     for data in ("table_scene.xml", "pointing_configs.json", "tl_bitmaps.npz"):
-        assert f"grounding_jax/assets/{data}" in names
+        assert f"grounding_jax/sim/assets/{data}" in names
     site = tmp / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target",
                     str(site), str(wheel)], check=True, capture_output=True, timeout=600)
@@ -72,7 +72,7 @@ def test_the_installed_wheel_builds_the_scene_renders_and_loads_modules_outside_
 import json, pathlib
 import jax, numpy as np
 import grounding_jax as gj
-from grounding_jax import tl_data, vision
+from grounding_jax.sim import tl_data, vision
 here = pathlib.Path(gj.__file__).resolve()
 env = gj.make_env("mujoco")
 state = env.step(env.reset(jax.random.key(0), gj.make_task("point", 0, 3)), jax.numpy.zeros(4))

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from grounding_jax import physics, scene
+from grounding_jax.sim import physics, scene
 
 
 def test_rollout_runner_equals_a_plain_mj_step_loop():
@@ -75,7 +75,7 @@ def test_an_error_inside_an_ffi_handler_reaches_the_caller():
     import jax
     import jax.numpy as jnp
 
-    from grounding_jax import _ffi
+    from grounding_jax.sim import _ffi
 
     def handler(ins, outs, attrs):
         raise ValueError(f"bad rows: {ins[0].shape}, rows={attrs['rows']}")

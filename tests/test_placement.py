@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import placement as free
-from grounding_jax import scene, tl_xy, vision
+from grounding_jax.learn import tl_xy
+from grounding_jax.sim import placement as free
+from grounding_jax.sim import scene, vision
 
 OK = [[-0.24, 0.10], [-0.22, 0.20], [-0.25, 0.30]]
 

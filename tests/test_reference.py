@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import al, cacla, scene
+from grounding_jax.learn import al, cacla
+from grounding_jax.sim import scene
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
 import reference_cacla as ref  # noqa: E402

@@ -21,8 +21,11 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import _guard, rollout, sweep, trained
-from grounding_jax.checkpoint import Checkpointer, CheckpointError, DamagedStepError
+from grounding_jax import sweep
+from grounding_jax.core import _guard
+from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, DamagedStepError
+from grounding_jax.robot import trained
+from grounding_jax.sim import rollout
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 #: a tiny AL sweep file: 4-unit networks, 10-step episodes, a checkpoint every episode
@@ -240,7 +243,7 @@ def test_a_second_writer_is_refused_before_it_touches_anything(whole, tmp_path):
     folder = w / "out" / "tiny"
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import sys, time
-        from grounding_jax import _guard
+        from grounding_jax.core import _guard
         with _guard.folder_lock({str(folder)!r}, "a test holder"):
             print("held", flush=True)
             time.sleep(60)
@@ -329,7 +332,7 @@ def test_a_full_disk_while_saving_modules_keeps_the_earlier_save(tmp_path):
     script = textwrap.dedent("""
         import sys
         import grounding_jax as gj
-        from grounding_jax import trained
+        from grounding_jax.robot import trained
         r = gj.load(sys.argv[1])
         try:
             trained.save(sys.argv[1], r.tl.params, r.tl.hyper, r.al.agent, r.al.config,
@@ -445,14 +448,14 @@ def test_train_py_accepts_every_tl_epoch_count_and_refuses_impossible_ones(tmp_p
 
     args = train.parse_args(["--set", "tl_epochs=9", "--out", str(tmp_path)])
     assert args.settings["tl_epochs"] == 9
-    from grounding_jax import tl_experiments
+    from grounding_jax.paper import tl_experiments
 
     res = tl_experiments.accuracy(jax.random.key(0), tmp_path, seeds=1, epochs=9)
     assert res["epochs"] == 9 and 0 <= res["test_acc_mean"] <= 1
     with pytest.raises(SystemExit):
         train.parse_args(["--set", "tl_epochs=0"])
     with pytest.raises(ValueError, match="eval_every: must be <= epochs"):
-        from grounding_jax import tl
+        from grounding_jax.learn import tl
 
         tl.TLConfig(epochs=5, eval_every=10)
     json.dumps(res)  # the result is plain JSON

@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from grounding_jax import ik, scene
+from grounding_jax.sim import ik, scene
 
 
 def test_exactly_four_actuated_arm_joints():

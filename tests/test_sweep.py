@@ -16,8 +16,10 @@ import jax
 import numpy as np
 import pytest
 
-from grounding_jax import al, al_experiments, sweep, tl
-from grounding_jax.checkpoint import CheckpointError
+from grounding_jax import sweep
+from grounding_jax.core.checkpoint import CheckpointError
+from grounding_jax.learn import al, tl
+from grounding_jax.paper import adapters, al_eval, al_experiments
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SWEEPS = sorted((ROOT / "sweeps").glob("*.toml"))
@@ -82,7 +84,7 @@ def test_grid_expands_to_every_combination_and_groups_by_static_fields():
     # AL hidden sizes are traced (padded to the largest): one group, built at size 7
     al_spec = _spec(TINY_AL, grid={"critic_lr": [0.01, 0.1], "critic_hidden": [3, 5, 7]})
     assert len(al_spec.points()) == 6 and len(al_spec.groups()) == 1
-    assert sweep._module_config(al_spec, al_spec.groups()[0][0]).learner.critic_hidden == 7
+    assert sweep.module_config(al_spec, al_spec.groups()[0][0]).learner.critic_hidden == 7
     # one field at a time around the base (each field's first value)
     axes = _spec(TINY_AL, design="axes", grid={"critic_lr": [0.01, 0.1, 0.3], "sigma": [0.1, 0.2]})
     assert [(p["critic_lr"], p["sigma"]) for p in axes.points()] == [
@@ -158,7 +160,7 @@ def test_every_sweep_file_validates(path):
 
 def test_the_free_tuning_sweep_starts_from_the_shipped_settings():
     # its comment promises: each field's first value (and every fixed param) is beyond's
-    from grounding_jax import beyond
+    from grounding_jax.paper import beyond
 
     spec = sweep.load_spec(ROOT / "sweeps" / "free_al_tuning.toml")
     shipped = {**beyond.FREE_TUNED, "actor_hidden": beyond.FREE_LEARNER.actor_hidden}
@@ -221,7 +223,8 @@ def test_bad_sweep_files_name_the_key_and_file_before_compiling(tmp_path, text, 
 def test_sweep_fields_and_validate_read_one_rule_table():
     """Each traced field the sweep takes from a dataclass is checked by that dataclass's own
     rule: the same words in both errors, from one table."""
-    from grounding_jax import cacla, env
+    from grounding_jax.learn import cacla
+    from grounding_jax.sim import env
 
     owners = [(cacla.HYPER_RULES, lambda n, v: cacla.validate(cacla.CaclaHyper(**{n: v}))),
               (al.HYPER_RULES, lambda n, v: al.validate(al.ALHyper(**{n: v}))),
@@ -286,7 +289,7 @@ def test_success_rates_are_recorded_at_the_evaluation_episodes(tmp_path):
     assert spec.evaluations() == (2, 4)
     out = sweep.run(spec, tmp_path, show_progress=False)
     m = _metrics(tmp_path / "succ")
-    names = [f"success_{k}" for k in al_experiments.SUCCESS_METRICS]
+    names = [f"success_{k}" for k in al_eval.SUCCESS_METRICS]
     for k in names:
         assert m[k].shape == (4, 2) and np.all((m[k] >= 0) & (m[k] <= 1)), k
     np.testing.assert_allclose(m["success_mean"], np.mean([m[k] for k in names[:-1]], 0),
@@ -302,12 +305,12 @@ def test_success_rates_are_recorded_at_the_evaluation_episodes(tmp_path):
     # a sweep's agents equal ones trained alone: test_al's chunk tests and the resume tests)
     found = sweep.trained_agents(spec, tmp_path)
     assert [f[0] for f in found] == [4, 4]
-    hp = sweep._hyper(spec, [spec.points()[1]])
-    cfg = sweep._module_config(spec, spec.groups()[0][0])
+    hp = sweep.adapter("al").hyper([spec.points()[1]])
+    cfg = sweep.module_config(spec, spec.groups()[0][0])
     agents = jax.tree.map(lambda x: x[1:], found[1][1])  # point 1, its second seed: row 3
-    direct = al_experiments.make_success_rates(cfg.env)(agents, jax.random.key(sweep.EVAL_SEED),
+    direct = al_eval.make_success_rates(cfg.env)(agents, jax.random.key(adapters.EVAL_SEED),
                                                         hp.env)
-    for k in al_experiments.SUCCESS_METRICS:
+    for k in al_eval.SUCCESS_METRICS:
         assert direct[k][0] == m[f"success_{k}"][3, -1], k
     tail = al_experiments.point_tail(found[1][1], found[1][2].env, cfg.env, last=5,
                                      layouts=(0,))
@@ -317,6 +320,7 @@ def test_success_rates_are_recorded_at_the_evaluation_episodes(tmp_path):
 SUBPROCESS_SWEEP = textwrap.dedent("""
     import json, sys
     from grounding_jax import sweep
+from grounding_jax.paper import adapters
     spec = sweep.parse_spec(json.loads(sys.argv[1]))
     sweep.run(spec, sys.argv[2], resume=len(sys.argv) > 3, show_progress=False)
 """)

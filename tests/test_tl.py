@@ -7,7 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from grounding_jax import scene, tl, tl_data, tl_experiments
+from grounding_jax.learn import tl
+from grounding_jax.paper import tl_experiments
+from grounding_jax.sim import scene, tl_data
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 import train  # noqa: E402
-from grounding_jax import beyond  # noqa: E402
+from grounding_jax.paper import beyond  # noqa: E402
 
 
 @pytest.fixture(scope="module")

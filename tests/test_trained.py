@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 import grounding_jax as gj
-from grounding_jax import cacla, esn, tl, tl_data, trained
-from grounding_jax.checkpoint import CheckpointError
-from grounding_jax.env import EnvConfig
+from grounding_jax.core.checkpoint import CheckpointError
+from grounding_jax.learn import cacla, esn, tl
+from grounding_jax.robot import trained
+from grounding_jax.sim import tl_data
+from grounding_jax.sim.env import EnvConfig
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +86,7 @@ def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
         trained._configs(cfg)
     cfg = json.loads(original)["config"]
     cfg["al"]["actor_hidden"] = 30
-    from grounding_jax.checkpoint import Checkpointer
+    from grounding_jax.core.checkpoint import Checkpointer
 
     with Checkpointer(tmp_path / "m", trained.KIND, json.loads(original)["config"],
                       read_only=True) as ck, pytest.raises(
@@ -99,7 +101,7 @@ def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
 
 
 def test_perform_compiles_once_per_step_count_and_answers_as_the_modules_do(tmp_path, modules):
-    from grounding_jax import al
+    from grounding_jax.learn import al
 
     _save(tmp_path / "m", modules)
     robot = gj.load(tmp_path / "m")

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from grounding_jax import scene, tl_data, vision
+from grounding_jax.sim import scene, tl_data, vision
 
 
 def _white(h=240, w=320):

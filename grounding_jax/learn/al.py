@@ -1,0 +1,494 @@
+"""Action learner (AL) training: learners acting in the env, the whole loop compiled.
+
+``make_train(config) -> train(key, hp) -> (agent, metrics)``; ``vmap`` ``train`` over keys and
+hyperparameters for a batch of agents (on the C MuJoCo backend the batch's physics goes to
+``mujoco.rollout`` in one call per step). By default each agent steps through its episodes
+with auto-reset (:func:`make_steps`: a finished episode's slot starts the agent's next episode
+at the next step); the lockstep loop (:func:`make_episodes`: episodes side by side, each
+``episode_length`` steps long) gives the same result, bit for bit, more slowly. An agent
+trains bit for bit the same alone or in any batch. The trainer drives any
+:class:`~grounding_jax.learn.learners.Learner` through its ``init``/``act``/``update``; the learner
+is the one whose config ``ALConfig.learner`` holds (CACLA, the paper's, by default). The
+paper's schedule (150 phase-1 + 300 phase-2 episodes) and the no-tricks schedule (plain CACLA
+from the start, ~2000 episodes) are configs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from grounding_jax.core._checks import FLAG, Rule, check_config, check_rules, integer_at_least
+from grounding_jax.learn import cacla, learners
+from grounding_jax.sim import placement as free
+from grounding_jax.sim import rollout, scene, tasks
+from grounding_jax.sim.env import (
+    DEFAULT_PARAMS,
+    Env,
+    EnvConfig,
+    EnvParams,
+    Task,
+    as_env,
+    scale_joints,
+)
+
+#: (phase-1 episodes, phase-2 episodes)
+SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
+
+
+#: Where training episodes put the objects: the paper's slots, or anywhere
+#: (:func:`placement.sample`, one placement per episode).
+PLACEMENTS = ("fixed", "random")
+
+#: What each count of :class:`ALConfig` accepts (its ``__post_init__`` and the sweep runner
+#: read it).
+CONFIG_RULES: dict[str, Rule] = {"phase1_episodes": integer_at_least(0),
+                                 "phase2_episodes": integer_at_least(0)}
+
+
+@dataclasses.dataclass(frozen=True)
+class ALConfig:
+    """Static configuration of AL training.
+
+    Attributes:
+        env: the env's static config (backend, substeps, episode length).
+        learner: the learner's static config (network sizes, ...); its type names the
+            learner (default: CACLA's :class:`cacla.CaclaConfig`).
+        phase1_episodes: episodes with the phase-1 actor rule (reward rose).
+        phase2_episodes: episodes of plain CACLA after them.
+        actions: action indices to draw tasks from (None, the default: every action of the
+            env's task set).
+        positions: position indices to draw tasks from (default all three).
+        random_layout: draw the layout per episode (else layout 0 always).
+        placement: ``"fixed"`` (the paper's three slots) or ``"random"`` (each episode
+            places the objects anywhere on the reachable table; the ``"free"`` task set
+            tells the actor the target's coordinates).
+    """
+
+    env: EnvConfig = EnvConfig()
+    learner: Any = cacla.CaclaConfig()
+    phase1_episodes: int = 150
+    phase2_episodes: int = 300
+    actions: tuple[int, ...] | None = None
+    positions: tuple[int, ...] = (0, 1, 2)
+    random_layout: bool = True
+    placement: str = "fixed"
+
+    def __post_init__(self) -> None:
+        check_config(self, CONFIG_RULES)
+        if self.placement not in PLACEMENTS:
+            raise ValueError(f"placement: unknown value {self.placement!r}; accepted values: "
+                             f"{PLACEMENTS}")
+        if self.phase1_episodes + self.phase2_episodes < 1:
+            raise ValueError("phase1_episodes + phase2_episodes: must be >= 1")
+        n_actions = self.env.tasks.n_actions
+        if self.actions is None:
+            object.__setattr__(self, "actions", tuple(range(n_actions)))
+        learners.for_config(self.learner)
+        if self.learner.task_set != self.env.task_set:
+            raise ValueError(f"learner.task_set: must be the env's task set "
+                             f"{self.env.task_set!r}, got {self.learner.task_set!r}")
+        for name, n in (("actions", n_actions), ("positions", tasks.N_POSITIONS)):
+            v = getattr(self, name)
+            if not v or any(not 0 <= int(i) < n for i in v):
+                raise ValueError(f"{name}: must be a non-empty tuple of indices in 0..{n - 1}, "
+                                 f"got {v!r}")
+
+    @classmethod
+    def from_schedule(cls, schedule: str, **kwargs: Any) -> ALConfig:
+        """A config with one of the named :data:`SCHEDULES` (``"paper"``, ``"no_tricks"``)."""
+        if schedule not in SCHEDULES:
+            raise ValueError(f"schedule: unknown value {schedule!r}; accepted values: "
+                             f"{tuple(SCHEDULES)}")
+        p1, p2 = SCHEDULES[schedule]
+        return cls(phase1_episodes=p1, phase2_episodes=p2, **kwargs)
+
+    @property
+    def episodes(self) -> int:
+        return self.phase1_episodes + self.phase2_episodes
+
+    @property
+    def learning(self) -> learners.Learner:
+        """The :class:`~grounding_jax.learn.learners.Learner` that ``learner`` configures."""
+        return learners.for_config(self.learner)
+
+
+@struct.dataclass
+class ALHyper:
+    """Traced hyperparameters: the learner's, the env's, and the trainer's own.
+
+    ``learner``: the learner's traced hyperparameters (their type must match the learner of
+    ``ALConfig.learner``; default CACLA's :class:`cacla.CaclaHyper`).
+
+    ``executed_target``: 1.0 -- the learner is given the action the arm executed (the
+    explored action after the servo target is clipped at the joint limits, and limited to the
+    actor's range [-1, 1]); 0.0 -- the explored action itself (the paper). At a joint limit
+    the explored action has no effect, so the paper's rule can drive the actor's output into
+    the limit and saturate it there, where its tanh gradient is too small to come back.
+    """
+
+    learner: Any = cacla.CaclaHyper()
+    env: EnvParams = EnvParams()
+    executed_target: Any = 0.0
+
+
+#: What each of :class:`ALHyper`'s own fields accepts (``validate`` and the sweep runner read
+#: it; the learner's and the env's fields have their own tables).
+HYPER_RULES: dict[str, Rule] = {"executed_target": FLAG}
+
+
+def hyper(learner: learners.Learner | None = None, **fields: Any) -> ALHyper:
+    """An :class:`ALHyper` from flat field names: each goes to the learner's hyperparameters
+    (default CACLA's), the env's :class:`EnvParams` or :class:`ALHyper` itself, by name.
+
+    Raises:
+        ValueError: a name that none of the three has (naming it and the accepted ones).
+    """
+    learner = learner or cacla.LEARNER
+    owners = {"learner": learner.hyper_type, "env": EnvParams, "al": ALHyper}
+    # the fields each owner takes by name (ALHyper's parts are not flat fields)
+    names = {o: set(t.__dataclass_fields__) - {"learner", "env"} for o, t in owners.items()}
+    parts: dict[str, dict[str, Any]] = {o: {} for o in owners}
+    for name, value in fields.items():
+        owner = next((o for o, ns in names.items() if name in ns), None)
+        if owner is None:
+            raise ValueError(f"{name}: not a field of the learner, the env or the trainer; "
+                             f"accepted fields: {sorted(set().union(*names.values()))}")
+        parts[owner][name] = value
+    return ALHyper(learner=learner.hyper_type(**parts["learner"]),
+                   env=EnvParams(**parts["env"]), **parts["al"])
+
+
+def validate(hp: ALHyper) -> ALHyper:
+    """ValueError naming the field for bad concrete values (before any compile)."""
+    check_rules(hp.learner, learners.for_hyper(hp.learner).hyper_rules)
+    hp.env.validate()
+    check_rules(hp, HYPER_RULES)
+    return hp
+
+
+def _check_learner(config: ALConfig, hp: ALHyper) -> learners.Learner:
+    """The config's learner; ValueError if ``hp.learner`` is another learner's (at trace
+    time, before anything runs)."""
+    lrn = config.learning
+    if not isinstance(hp.learner, lrn.hyper_type):
+        raise ValueError(f"learner: hyperparameters {type(hp.learner).__name__} do not belong "
+                         f"to the config's learner {lrn.name!r} (accepted: "
+                         f"{lrn.hyper_type.__name__})")
+    return lrn
+
+
+def executed_action(q: jax.Array, ctrl: jax.Array, action_scale) -> jax.Array:
+    """The action the arm executed: the servo target ``ctrl`` (radians, after clipping at the
+    joint limits) relative to the joints ``q``, in action units, limited to [-1, 1]."""
+    return jnp.clip((scale_joints(ctrl) - scale_joints(q)) / action_scale, -1.0, 1.0)
+
+
+#: The trainer's loops (:func:`make_episodes` and :func:`make_steps`).
+LOOPS = ("auto_reset", "lockstep")
+
+
+def _check_loop(loop: str) -> str:
+    if loop not in LOOPS:
+        raise ValueError(f"loop: unknown value {loop!r}; accepted values: {LOOPS}")
+    return loop
+
+
+class _Parts:
+    """What both loops share: the episode's draw, one learning step, the episode's metrics."""
+
+    def __init__(self, config: ALConfig) -> None:
+        self.config = config
+        self.env = Env(config.env)
+        self.lrn = config.learning
+        self.length = config.env.episode_length
+        self._actions = jnp.asarray(config.actions, jnp.int32)
+        self._positions = jnp.asarray(config.positions, jnp.int32)
+        self._n_layouts = len(scene.LAYOUTS) if config.random_layout else 1
+
+    def draw(self, key: jax.Array) -> tuple[Task, jax.Array, jax.Array]:
+        """An episode's key -> (task, reset key, one exploration key per step)."""
+        k_task, k_reset, k_steps = jax.random.split(key, 3)
+        ka, kp, kl = jax.random.split(k_task, 3)
+        task = Task(action=jax.random.choice(ka, self._actions),
+                    position=jax.random.choice(kp, self._positions),
+                    layout=jax.random.randint(kl, (), 0, self._n_layouts, jnp.int32))
+        if self.config.placement == "random":  # a key of its own: the other draws stay
+            task = task.replace(placement=free.sample(jax.random.fold_in(k_task, 1)))
+        return task, k_reset, jax.random.split(k_steps, self.length)
+
+    def learn(self, agent, state, k: jax.Array, lhp, hp: ALHyper):
+        """Act, step the env, update the learner (not where the episode has ended).
+
+        Returns:
+            (agent, next state, this step's record: reward, live, touched, delta²).
+        """
+        env, lrn = self.env, self.lrn
+        a, _ = lrn.act(agent, state.obs, k, lhp)
+        nxt = env.step(state, a, hp.env)
+        target = jnp.where(hp.executed_target > 0.5,
+                           executed_action(state.qpos[env.arm_qpos], nxt.info["ctrl"],
+                                           hp.env.action_scale), a)
+        tr = learners.Transition(obs=state.obs, action=target, reward=nxt.reward,
+                                 next_obs=nxt.obs, done=nxt.done, prev_reward=state.reward)
+        new, info = lrn.update(agent, tr, lhp, self.config.learner)
+        live = ~state.done  # steps after the episode ended change nothing
+        agent = jax.tree.map(lambda n, o: jnp.where(live, n, o), new, agent)
+        record = {"reward": jnp.where(live, nxt.reward, 0.0), "live": live,
+                  "touched": nxt.metrics["touched_target"],
+                  "delta_sq": jnp.where(live, info["delta"] ** 2, 0.0)}
+        return agent, nxt, record
+
+    def metrics(self, last, task: Task, record: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """The episode's metrics from its last state and its steps' records ``[length]``."""
+        live = record["live"]
+        steps = jnp.sum(live)
+        late = (jnp.arange(self.length) >= steps - 10) & live
+        return {
+            "return": learners.ordered_sum(record["reward"]), "final_reward": last.reward,
+            "td_error": jnp.sqrt(learners.ordered_sum(record["delta_sq"]) / jnp.maximum(steps, 1)),
+            "final_point_l1": last.metrics["point_l1"],
+            "final_palm_target_dist": last.metrics["palm_target_dist"],
+            "touched_target_late": jnp.any((record["touched"] > 0) & late).astype(jnp.float32),
+            "wrong_moved": (last.wrong_since >= 0).astype(jnp.float32),
+            "target_moved": last.metrics["target_moved"],
+            "steps": steps, "action": task.action, "position": task.position,
+        }
+
+
+def make_episodes(config: ALConfig):
+    """Build ``run(agent, keys, plan, hp) -> (agent, metrics)``: one episode per key, in
+    order, under ``lax.scan`` -- the lockstep loop: every episode runs ``episode_length`` steps,
+    those after its end masked (batched, a finished episode's slot idles until the longest
+    episode of the batch is done). ``plan`` (from :func:`schedule`) holds per-episode arrays:
+    ``phase1`` (1.0 where the phase-1 rule applies) and ``progress`` (0 -> 1 over the run).
+
+    Training in chunks of episodes (a host loop with progress and checkpoints) calls this on
+    consecutive slices of the keys; the result equals one :func:`make_train` call.
+    """
+    parts = _Parts(config)
+    env, lrn = parts.env, parts.lrn
+
+    def episode(agent, xs, hp: ALHyper):
+        key, plan = xs
+        task, k_reset, step_keys = parts.draw(key)
+        lhp = lrn.at_episode(hp.learner, plan["phase1"], plan["progress"])
+        state = env.reset(k_reset, task, hp.env)
+
+        def step(carry, k):
+            agent, state = carry
+            agent, nxt, record = parts.learn(agent, state, k, lhp, hp)
+            return (agent, nxt), record
+
+        (agent, last), record = jax.lax.scan(step, (agent, state), step_keys)
+        return agent, parts.metrics(last, task, record)
+
+    def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
+        _check_learner(config, hp)
+        return jax.lax.scan(lambda a, xs: episode(a, xs, hp), agent, (keys, plan))
+
+    return run
+
+
+def make_steps(config: ALConfig):
+    """Build ``run(agent, keys, plan, hp) -> (agent, metrics)`` like :func:`make_episodes`,
+    step by step with auto-reset: a ``lax.while_loop`` over RL steps in which an episode that
+    ends is followed, at the next step, by the agent's next episode.
+
+    Batched with ``vmap``, each agent runs its own episodes at its own pace (its own episode
+    counter picks its phase and decays), so every physics call carries every agent that still
+    has episodes to run. The result is the same as :func:`make_episodes`' -- the same draws,
+    the same exploration keys, the same steps -- only the idle steps are gone.
+    """
+    parts = _Parts(config)
+    env, lrn, length = parts.env, parts.lrn, parts.length
+
+    def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
+        _check_learner(config, hp)
+        n = keys.shape[0]
+        tasks_, k_resets, step_keys = jax.vmap(parts.draw)(keys)
+
+        def task_at(e):
+            return jax.tree.map(lambda x: x[e], tasks_)
+
+        # every reset of the chunk at once (one batched physics call; resets do not depend
+        # on earlier episodes), so the loop restarts an episode by picking its first state
+        firsts = jax.vmap(env.reset, in_axes=(0, 0, None))(k_resets, tasks_, hp.env)
+        state = jax.tree.map(lambda x: x[0], firsts)
+        lhp0 = lrn.at_episode(hp.learner, plan["phase1"][0], plan["progress"][0])
+        _, nxt, record = jax.eval_shape(parts.learn, agent, state, step_keys[0, 0], lhp0, hp)
+        blank = jax.tree.map(lambda x: jnp.zeros((length,) + x.shape, x.dtype), record)
+        out = jax.tree.map(lambda x: jnp.zeros((n,) + x.shape, x.dtype),
+                           jax.eval_shape(parts.metrics, nxt, task_at(0), blank))
+
+        def body(carry):
+            agent, state, e, records, out = carry
+            t = state.step
+            lhp = lrn.at_episode(hp.learner, plan["phase1"][e], plan["progress"][e])
+            agent, nxt, record = parts.learn(agent, state, step_keys[e, t], lhp, hp)
+            records = jax.tree.map(lambda b, v: b.at[t].set(v), records, record)
+            ended = nxt.done
+            m = parts.metrics(nxt, task_at(e), records)
+            out = jax.tree.map(lambda o, v: o.at[e].set(jnp.where(ended, v, o[e])), out, m)
+            e_next = e + ended.astype(e.dtype)
+            first = jax.tree.map(lambda x: x[jnp.minimum(e_next, n - 1)], firsts)
+            state = jax.tree.map(lambda f, x: jnp.where(ended & (e_next < n), f, x), first, nxt)
+            records = jax.tree.map(lambda b, z: jnp.where(ended, z, b), records, blank)
+            return agent, state, e_next, records, out
+
+        carry = (agent, state, jnp.zeros((), jnp.int32), blank, out)
+        agent, _, _, _, out = jax.lax.while_loop(lambda c: c[2] < n, body, carry)
+        return agent, out
+
+    return run
+
+
+def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
+             ) -> tuple[Any, jax.Array, dict[str, jax.Array]]:
+    """The key split once: (initial learner state -- the learner's ``init`` with ``hp`` --,
+    one key per episode, the per-episode plan: ``phase1`` flags and ``progress`` 0 -> 1)."""
+    k_init, k_eps = jax.random.split(key)
+    e = jnp.arange(config.episodes)
+    plan = {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
+            "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
+    hp = ALHyper(learner=config.learning.hyper_type()) if hp is None else hp
+    agent = _check_learner(config, hp).init(k_init, config.learner, hp.learner)
+    return agent, jax.random.split(k_eps, config.episodes), plan
+
+
+def _loop_maker(loop: str):
+    return make_steps if _check_loop(loop) == "auto_reset" else make_episodes
+
+
+def make_train(config: ALConfig, loop: str = "auto_reset"):
+    """Build ``train(key, hp) -> (agent, metrics)`` for one agent (vmap it for a batch).
+
+    The key is split once into the agent's initial weights and one key per episode (task draw,
+    reset, exploration noise).
+
+    Args:
+        config: static config.
+        loop: ``"auto_reset"`` (:func:`make_steps`, the default) or ``"lockstep"``
+            (:func:`make_episodes`); both give the same agent and metrics, bit for bit.
+
+    Returns:
+        ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
+        steps taken), ``final_reward``, ``td_error`` (the critic's RMS TD error over the
+        episode's steps), ``final_point_l1``, ``final_palm_target_dist``,
+        ``touched_target_late`` (touched the target in one of the last 10 steps),
+        ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
+    """
+    run = _loop_maker(loop)(config)
+
+    def train(key: jax.Array, hp: ALHyper) -> tuple[Any, dict[str, jax.Array]]:
+        agent, keys, plan = schedule(key, config, hp)
+        return run(agent, keys, plan, hp)
+
+    return train
+
+
+@functools.lru_cache(maxsize=16)
+def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef, loop: str = "auto_reset"):
+    """``jit(vmap(...))`` of the loop's runner, kept per static config, loop and batched-hp
+    layout: a later batch with the same config and shapes (another sweep, another chunk)
+    reuses the compiled code instead of compiling it again (host-callback code is not in
+    JAX's persistent cache)."""
+    axes = jax.tree.unflatten(hp_treedef, hp_axes)
+    return jax.jit(jax.vmap(_loop_maker(loop)(config), in_axes=(0, 0, None, axes)))
+
+
+@functools.lru_cache(maxsize=16)
+def _batched_schedule(config: ALConfig, hp_axes: tuple, hp_treedef):
+    """``jit(vmap(schedule))``, cached like :func:`_batched_episodes`. Run eagerly instead,
+    its random draws would compile one small XLA program per op and shape (~20 s of a quick
+    profile)."""
+    axes = jax.tree.unflatten(hp_treedef, hp_axes)
+    return jax.jit(jax.vmap(lambda k, h: schedule(k, config, h), in_axes=(0, axes)))
+
+
+def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
+                    on_stop=None, start: tuple | None = None, sharding=None,
+                    loop: str = "auto_reset"):
+    """Train a batch of agents (``keys`` [agents], ``hp`` batched or shared) in a host loop
+    over chunks of episodes ending at each of ``stops`` (the last must be
+    ``config.episodes``).
+
+    Args:
+        config: static config.
+        keys: one key per agent (split once, as in :func:`make_train`).
+        hp: hyperparameters; leaves with a leading axis are per agent.
+        stops: episode counts at which a chunk ends.
+        on_stop: ``on_stop(episode, agents, metrics)`` after each chunk, with the metrics so
+            far (``[agents, config.episodes]``, zeros after ``episode``) -- where progress
+            bars and checkpoints hang.
+        start: ``(episode, agents, metrics)`` saved by ``on_stop``: training resumes after
+            ``episode`` (the result is bit-identical to an uninterrupted run).
+        sharding: a ``jax.sharding.Sharding`` of the agent axis (e.g. over local devices);
+            None keeps the default device.
+        loop: ``"auto_reset"`` (default) or ``"lockstep"``, as in :func:`make_train`.
+
+    Returns:
+        (agents, metrics [agents, episodes]) -- equal to ``vmap(make_train(config))``.
+    """
+    _check_loop(loop)
+    if not stops or sorted(stops) != list(stops) or stops[-1] != config.episodes or stops[0] < 1:
+        raise ValueError(f"stops: must be increasing, >= 1 and end at {config.episodes}, "
+                         f"got {stops!r}")
+    axes, treedef = jax.tree.flatten(jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp),
+                                     is_leaf=lambda x: x is None)
+    run = _batched_episodes(config, tuple(axes), treedef, loop)
+    agents, ep_keys, plan = _batched_schedule(config, tuple(axes), treedef)(keys, hp)
+    plan = jax.tree.map(lambda x: x[0], plan)  # the same for every agent
+    done = 0
+    metrics = None
+    if start is not None:
+        done, agents, metrics = start
+    if sharding is not None:
+        agents, ep_keys, metrics = jax.device_put((agents, ep_keys, metrics), sharding)
+        hp = jax.tree.map(lambda x: jax.device_put(x, sharding) if jnp.ndim(x) else x, hp)
+    for stop in (s for s in stops if s > done):
+        chunk = slice(done, stop)
+        agents, m = run(agents, ep_keys[:, chunk], jax.tree.map(lambda x, c=chunk: x[c], plan),
+                        hp)
+        if metrics is None:
+            metrics = jax.tree.map(lambda x: jnp.zeros(x.shape[:1] + (config.episodes,),
+                                                       x.dtype), m)
+        metrics = jax.tree.map(lambda a, b, c=chunk: a.at[:, c].set(b), metrics, m)
+        done = stop
+        if on_stop is not None:
+            on_stop(stop, agents, metrics)
+    return agents, metrics
+
+
+def make_eval(env: Env | EnvConfig | None = None, steps: int | None = None,
+              learner: learners.Learner | None = None):
+    """Build ``evaluate(agent, key, task, env_params) -> (first, trajectory, hidden)``: the
+    learner's greedy policy (no exploration) for one episode; the trajectory is the env states
+    after each step, stacked, and ``hidden`` the policy's hidden features at each step (for
+    the namer).
+
+    Args:
+        env: the env (or its static config; default ``EnvConfig()``).
+        steps: steps per episode (default: the env's episode length).
+        learner: the learner whose states are evaluated (default: the one the agent's type
+            belongs to).
+    """
+    env = as_env(env)
+    n = env.config.episode_length if steps is None else steps
+
+    def evaluate(agent, key: jax.Array, task: Task, env_params: EnvParams = DEFAULT_PARAMS):
+        lrn = learner or learners.for_state(agent)
+
+        def policy(state, _):
+            return lrn.policy(agent, state.obs)
+
+        first = env.reset(key, task, env_params)
+        traj, hidden = rollout.rollout(env, first, policy, n, env_params)
+        return first, traj, hidden
+
+    return evaluate

@@ -1,0 +1,2 @@
+"""The trained robot: the three modules together (``Robot``), saved, sealed and loaded.
+"""

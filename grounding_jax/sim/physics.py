@@ -1,0 +1,221 @@
+"""Two physics backends behind one pure functional interface.
+
+Both advance a batch of scenes by ``substeps`` MuJoCo steps with a constant control and return
+the new ``(qpos, qvel)`` and the sensor readings of the last substep:
+
+- ``"mjx"``: pure JAX (``mujoco.mjx``), the path for GPUs;
+- ``"mujoco"``: C MuJoCo through a persistent ``mujoco.rollout.Rollout`` thread pool, called
+  from JAX as a named XLA FFI target (``_ffi``), the fast path on CPUs.
+
+The physics state carried between RL steps is only ``qpos, qvel`` (float32). The solver's warm
+start is reset to zero at each RL step on both backends, so a step depends only on its inputs
+(and the two backends see the same problem).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from grounding_jax.sim import _ffi, scene
+
+BACKENDS = ("mujoco", "mjx")
+
+StepFn = Callable[..., tuple[jax.Array, jax.Array, jax.Array]]
+ForwardFn = Callable[..., jax.Array]
+
+
+def check_backend(backend: str) -> str:
+    """Return ``backend`` or raise a ValueError naming the accepted values."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: unknown value {backend!r}; accepted values: {BACKENDS}")
+    return backend
+
+
+# --------------------------------------------------------------------------- C MuJoCo backend
+class _MujocoRunner:
+    """Holds the C model, one MjData per thread and the persistent rollout pool."""
+
+    def __init__(self, nthread: int) -> None:
+        from mujoco import rollout
+
+        self.model = scene.model()
+        self.nthread = nthread
+        self.datas = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self.pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        self.lock = threading.Lock()  # the pool and the MjData are not re-entrant
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self.nstate = mujoco.mj_stateSize(self.model, spec)
+        m = self.model
+        # FULLPHYSICS = time, qpos, qvel (+ act, mocap, eq_active, ... which this scene lacks)
+        if self.nstate != 1 + m.nq + m.nv:
+            raise RuntimeError(f"unexpected physics state size {self.nstate} for this scene")
+
+    def step(self, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, substeps: int,
+             live: np.ndarray | None = None):
+        """Simulate the rows where ``live`` (all if None); other rows come back unchanged
+        with zero sensor data (the env discards them: finished episodes cost no physics)."""
+        m = self.model
+        lead = qpos.shape[:-1]
+        qp = np.asarray(qpos, np.float32).reshape(-1, m.nq)
+        qv = np.asarray(qvel, np.float32).reshape(-1, m.nv)
+        u = np.asarray(ctrl, np.float64).reshape(-1, 1, m.nu)
+        rows = np.arange(qp.shape[0]) if live is None else np.flatnonzero(np.ravel(live))
+        qp_out, qv_out = qp.copy(), qv.copy()
+        sens_out = np.zeros((qp.shape[0], m.nsensordata), np.float32)
+        if rows.size:
+            n = rows.size
+            state0 = np.concatenate([np.zeros((n, 1)), qp[rows], qv[rows]], axis=1)
+            with self.lock:
+                states, sensors = self.pool.rollout(
+                    m, self.datas, state0.astype(np.float64), u[rows], nstep=substeps,
+                    initial_warmstart=np.zeros((n, m.nv)),
+                )
+            last = states[:, -1]
+            qp_out[rows] = last[:, 1 : 1 + m.nq]
+            qv_out[rows] = last[:, 1 + m.nq :]
+            sens_out[rows] = sensors[:, -1]
+        return (qp_out.reshape(*lead, m.nq), qv_out.reshape(*lead, m.nv),
+                sens_out.reshape(*lead, m.nsensordata))
+
+    def forward(self, qpos: np.ndarray, qvel: np.ndarray,
+                live: np.ndarray | None = None) -> np.ndarray:
+        """Sensor data of the rows where ``live`` (all if None); other rows are zero."""
+        m = self.model
+        lead = qpos.shape[:-1]
+        qp = np.asarray(qpos, np.float64).reshape(-1, m.nq)
+        qv = np.asarray(qvel, np.float64).reshape(-1, m.nv)
+        rows = np.arange(qp.shape[0]) if live is None else np.flatnonzero(np.ravel(live))
+        out = np.zeros((qp.shape[0], m.nsensordata), np.float32)
+        with self.lock:
+            d = self.datas[0]
+            for i in rows:
+                d.qpos[:] = qp[i]
+                d.qvel[:] = qv[i]
+                d.ctrl[:] = qp[i, scene.index().arm_qpos]
+                d.qacc_warmstart[:] = 0.0
+                mujoco.mj_forward(m, d)
+                out[i] = d.sensordata
+        return out.reshape(*lead, m.nsensordata)
+
+
+@functools.cache
+def mujoco_runner(nthread: int | None = None) -> _MujocoRunner:
+    """The process-wide C MuJoCo runner (its thread pool is created once and kept)."""
+    if nthread is None:
+        nthread = int(os.environ.get("GROUNDING_JAX_THREADS", os.cpu_count() or 1))
+    return _MujocoRunner(nthread)
+
+
+STEP_TARGET = "grounding_jax_mujoco_step"
+FORWARD_TARGET = "grounding_jax_mujoco_forward"
+
+
+def _split(x: np.ndarray, sizes: list[int]) -> list[np.ndarray]:
+    return np.split(x, np.cumsum(sizes)[:-1], axis=-1)
+
+
+def _step_handler(ins: list[np.ndarray], outs: list[np.ndarray], attrs: dict) -> None:
+    idx = scene.index()
+    q, v, u, live = _split(ins[0], [idx.nq, idx.nv, idx.nu, 1])
+    res = mujoco_runner().step(q, v, u, int(attrs["substeps"]), live[..., 0] > 0.5)
+    outs[0][...] = np.concatenate(res, axis=-1)
+
+
+def _forward_handler(ins: list[np.ndarray], outs: list[np.ndarray], attrs: dict) -> None:
+    idx = scene.index()
+    q, v, live = _split(ins[0], [idx.nq, idx.nv, 1])
+    outs[0][...] = mujoco_runner().forward(q, v, live[..., 0] > 0.5)
+
+
+def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
+    idx = scene.index()
+    f32 = jnp.float32
+    nq, nv = idx.nq, idx.nv
+    # C MuJoCo is called as a named XLA FFI target (``_ffi``), not through
+    # ``jax.pure_callback``: those programs go to JAX's persistent cache. Each call takes one
+    # array and returns one, so the per-array cost of crossing into Python is paid once.
+    _ffi.register(STEP_TARGET, _step_handler)
+    _ffi.register(FORWARD_TARGET, _forward_handler)
+
+    def flag(live, lead):
+        live = jnp.ones(lead, bool) if live is None else live
+        return live.astype(f32)[..., None]
+
+    def step(qpos, qvel, ctrl, live=None):
+        lead = qpos.shape[:-1]
+        x = jnp.concatenate([qpos, qvel, ctrl.astype(f32), flag(live, lead)], axis=-1)
+        shape = jax.ShapeDtypeStruct(lead + (nq + nv + idx.nsensordata,), f32)
+        y = jax.ffi.ffi_call(STEP_TARGET, shape, vmap_method="broadcast_all")(
+            x, substeps=np.int32(substeps))
+        return y[..., :nq], y[..., nq:nq + nv], y[..., nq + nv:]
+
+    def forward(qpos, qvel, live=None):
+        lead = qpos.shape[:-1]
+        x = jnp.concatenate([qpos, qvel, flag(live, lead)], axis=-1)
+        shape = jax.ShapeDtypeStruct(lead + (idx.nsensordata,), f32)
+        return jax.ffi.ffi_call(FORWARD_TARGET, shape, vmap_method="broadcast_all")(x)
+
+    return step, forward
+
+
+# -------------------------------------------------------------------------------- MJX backend
+@functools.cache
+def mjx_model():
+    """The scene as an MJX model (device arrays), made once per process."""
+    from mujoco import mjx
+
+    # concrete arrays even when first asked for inside a trace (e.g. ``jax.eval_shape`` of a
+    # trainer): a cached tracer would leak into every later use
+    with jax.ensure_compile_time_eval():
+        return mjx.put_model(scene.model())
+
+
+def _mjx_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
+    from mujoco import mjx
+
+    mx = mjx_model()
+    idx = scene.index()
+
+    def _data(qpos, qvel):
+        d = mjx.make_data(mx)
+        return d.replace(qpos=qpos, qvel=qvel, ctrl=qpos[idx.arm_qpos])
+
+    def step(qpos, qvel, ctrl, live=None):
+        del live  # vectorized: every row is computed anyway; the env discards finished ones
+        d = _data(qpos, qvel).replace(ctrl=ctrl)
+        d = jax.lax.fori_loop(0, substeps, lambda _, x: mjx.step(mx, x), d)
+        return d.qpos, d.qvel, d.sensordata
+
+    def forward(qpos, qvel, live=None):
+        del live  # as in step: every row is computed
+        return mjx.forward(mx, _data(qpos, qvel)).sensordata
+
+    return step, forward
+
+
+def make_physics(backend: str, substeps: int) -> tuple[StepFn, ForwardFn]:
+    """The backend's ``step(qpos, qvel, ctrl, live=None) -> (qpos, qvel, sensordata)`` and
+    ``forward(qpos, qvel, live=None) -> sensordata``, both pure JAX functions
+    (jit/vmap/scan-safe). ``live`` (bool per scene) lets the C backend skip scenes whose
+    episode has ended (or, for ``forward``, that do not start one); their outputs are then
+    meaningless and must be discarded by the caller.
+
+    Args:
+        backend: ``"mujoco"`` (C MuJoCo rollouts, CPU) or ``"mjx"`` (pure JAX).
+        substeps: MuJoCo steps per call, with the control held constant.
+
+    Returns:
+        ``(step, forward)``.
+    """
+    check_backend(backend)
+    if backend == "mujoco":
+        return _mujoco_fns(substeps)
+    return _mjx_fns(substeps)

@@ -1,0 +1,150 @@
+"""Seeing the robot act: frames of an episode from the third-person camera, and videos.
+
+:func:`frames` draws a :meth:`Robot.perform <grounding_jax.robot.trained.Robot.perform>` result
+or any single-episode env trajectory (a :class:`~grounding_jax.sim.env.State` stacked over
+steps) from the ``observer`` camera, which faces the robot across the table; :func:`write_video`
+writes them as MP4 or GIF (through mediapy and an ffmpeg binary: ``imageio-ffmpeg``'s, installed
+with the package, or one on ``PATH``); :func:`strip` lays a few frames side by side for a PNG.
+The command-line front end is ``python -m grounding_jax.show``.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+#: the containers write_video writes, by file suffix
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def _trajectory(episode: Any):
+    traj = episode["trajectory"] if isinstance(episode, dict) else episode
+    qpos = getattr(traj, "qpos", None)
+    if qpos is None:
+        raise ValueError("episode: expected a perform() result or an env trajectory (a State "
+                         f"stacked over steps), got {type(episode).__name__}")
+    qpos = np.asarray(qpos)
+    if qpos.ndim != 2:
+        raise ValueError(f"episode: one episode's trajectory has qpos [steps, nq]; got shape "
+                         f"{qpos.shape} (take one episode of a batch first, e.g. "
+                         "jax.tree.map(lambda x: x[0], trajectory))")
+    return traj, qpos
+
+
+def frames(episode: Any, camera: str = "observer", width: int = 480, height: int = 320,
+           every: int = 1, caption: str | None = None) -> np.ndarray:
+    """Render an episode, one frame per RL step.
+
+    Args:
+        episode: a :meth:`Robot.perform` result (its ``trajectory``) or an env trajectory of
+            one episode (``State`` with a leading steps axis, e.g. from ``jax.lax.scan``).
+        camera: ``"observer"`` (third person) or ``"eye"`` (the robot's view, arm drawn).
+        width, height: frame size in pixels.
+        every: draw every ``every``-th step.
+        caption: text written on every frame (e.g. the command and what the robot named).
+
+    Returns:
+        ``uint8 [frames, height, width, 3]``.
+    """
+    from grounding_jax.sim import vision
+
+    for name, v in (("width", width), ("height", height), ("every", every)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"{name}: {v!r} is not accepted; accepted: an int >= 1")
+    traj, qpos = _trajectory(episode)
+    layout = int(np.asarray(traj.task.layout).reshape(-1)[0])
+    renderer = vision.EyeRenderer(width, height, camera=camera)
+    try:
+        out = np.stack([renderer.render(layout, qpos=q, arm=True) for q in qpos[::every]])
+    finally:
+        renderer.close()
+    if caption:
+        import cv2
+
+        for f in out:  # white text on a dark band at the bottom
+            cv2.rectangle(f, (0, height - 22), (width, height), (30, 30, 30), -1)
+            cv2.putText(f, caption, (6, height - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                        (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+def ffmpeg_binary() -> str:
+    """The ffmpeg that videos are written with: ``$GROUNDING_JAX_FFMPEG``, else the one
+    ``imageio-ffmpeg`` ships, else ``ffmpeg`` on ``PATH``.
+
+    Raises:
+        RuntimeError: none found (the message says how to get one).
+    """
+    chosen = os.environ.get("GROUNDING_JAX_FFMPEG")
+    if chosen:
+        if not (shutil.which(chosen) or pathlib.Path(chosen).is_file()):
+            raise RuntimeError(f"GROUNDING_JAX_FFMPEG: {chosen!r} is not an ffmpeg binary")
+        return chosen
+    try:
+        import imageio_ffmpeg
+
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):
+        pass
+    found = shutil.which("ffmpeg")
+    if found is None:
+        raise RuntimeError("writing a video needs ffmpeg, and none was found: pip install "
+                           "imageio-ffmpeg (it ships one), or install ffmpeg (Debian/Ubuntu: "
+                           "apt-get install ffmpeg), or set GROUNDING_JAX_FFMPEG=/path/ffmpeg")
+    return found
+
+
+def write_video(path: str | os.PathLike, images: np.ndarray, fps: int = 25) -> pathlib.Path:
+    """Write frames as a video: ``.mp4`` (H.264) or ``.gif``, chosen by the suffix.
+
+    The file appears complete or not at all (written beside it, then renamed).
+
+    Args:
+        path: the file to write.
+        images: ``uint8 [frames, height, width, 3]``, e.g. from :func:`frames`.
+        fps: frames per second.
+
+    Returns:
+        The path written.
+    """
+    path = pathlib.Path(path)
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"out: unknown video type {path.suffix or '(none)'!r} in {path}; "
+                         f"accepted suffixes: {VIDEO_SUFFIXES}")
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3 or images.shape[0] < 1:
+        raise ValueError(f"images: expected [frames, height, width, 3], got {images.shape}")
+    if isinstance(fps, bool) or not isinstance(fps, int) or fps < 1:
+        raise ValueError(f"fps: {fps!r} is not accepted; accepted: an int >= 1")
+    import mediapy
+
+    mediapy.set_ffmpeg(ffmpeg_binary())
+    if path.suffix.lower() == ".mp4":  # H.264 wants even sizes
+        h, w = images.shape[1] // 2 * 2, images.shape[2] // 2 * 2
+        images = images[:, :h, :w]
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    try:
+        mediapy.write_video(tmp, images, fps=fps,
+                            codec="gif" if path.suffix.lower() == ".gif" else "h264")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def strip(images: np.ndarray, n: int = 4, at: Sequence[float] | None = None) -> np.ndarray:
+    """``n`` frames side by side (the first, the last and evenly between, or at the given
+    fractions of the episode), for a PNG.
+
+    Returns:
+        ``uint8 [height, n * width, 3]``.
+    """
+    images = np.asarray(images)
+    at = np.linspace(0, 1, n) if at is None else np.asarray(at, float)
+    idx = np.round(at * (len(images) - 1)).astype(int)
+    return np.concatenate(list(images[idx]), axis=1)

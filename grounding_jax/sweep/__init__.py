@@ -1,0 +1,38 @@
+"""Hyperparameter sweeps from TOML files: the spec (:mod:`~grounding_jax.sweep.spec`), the
+runner (:mod:`~grounding_jax.sweep.runner`) and the summaries
+(:mod:`~grounding_jax.sweep.summary`); ``python -m grounding_jax.sweep FILE`` runs one.
+
+The public names are imported on first use, so that the command line takes over SIGINT
+before JAX loads.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_LAZY = {
+    **{n: "grounding_jax.sweep.spec" for n in (
+        "SweepError", "SweepSpec", "Field", "Adapter", "register", "adapter", "adapters",
+        "field_from", "traced_fields", "parse_spec", "apply_overrides", "load_spec",
+        "module_config", "FIELDS", "METRICS", "TOP_KEYS", "DESIGNS")},
+    **{n: "grounding_jax.sweep.runner" for n in (
+        "run", "run_group", "split_run_keys", "trained_agents", "chunk_stops", "identity",
+        "restore_to_resume", "EXECUTORS")},
+    **{n: "grounding_jax.sweep.summary" for n in ("point_label", "summaries")},
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'grounding_jax.sweep' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+__all__ = sorted(_LAZY)

@@ -1,0 +1,371 @@
+"""The sweep runner: each static group of a sweep as one sharded, vmapped batch, with
+checkpoints, resumption, and the results written together.
+
+It knows the modules it trains only through their :class:`~grounding_jax.sweep.spec.Adapter`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import pathlib
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax.core import _guard
+from grounding_jax.core._io import Staged, code_fingerprint, library_versions
+from grounding_jax.core.checkpoint import Checkpointer, CheckpointError
+from grounding_jax.sweep.spec import SweepError, SweepSpec, adapter, module_config
+from grounding_jax.sweep.summary import csv_text, summaries, write_sweep_figure
+
+EXECUTORS = ("local", "ray")
+
+
+def _batch_sharding(batch: int):
+    """(sharding of a leading batch axis over all local devices, padding rows needed)."""
+    devices = jax.local_devices()
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("batch",))
+    return (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch")),
+            (-batch) % len(devices))
+
+
+def _pad(tree, pad: int):
+    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[:1], pad, 0)])
+                        if pad and jnp.ndim(x) else x,
+                        tree)
+
+
+def _finite_rows(tree, batch: int) -> np.ndarray:
+    """Per row: every float leaf of the tree finite."""
+    ok = np.ones(batch, bool)
+    for leaf in jax.tree.leaves(tree):
+        a = np.asarray(leaf)
+        if np.issubdtype(a.dtype, np.floating):
+            ok &= np.isfinite(a.reshape(batch, -1)).all(1)
+    return ok
+
+
+def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path | None,
+              resume: bool = False, progress: Callable[[int], None] | None = None
+              ) -> dict[str, np.ndarray]:
+    """Train one static group: its points x seeds as one sharded, vmapped batch.
+
+    Args:
+        spec: the sweep.
+        group: index into ``spec.groups()``.
+        run_keys: raw key data ``[points * seeds, ...]`` of the *whole* sweep (row
+            ``point * seeds + seed``).
+        out: the sweep's output folder (checkpoints under ``out/checkpoints``); None: none.
+        resume: continue from this group's checkpoint if there is one.
+        progress: called with the number of run-episodes (AL) or run-epochs (TL) just done.
+
+    Returns:
+        ``metrics`` (each ``[rows, ...]``), ``finite`` ``[rows]`` and ``rows`` (indices into
+        points x seeds).
+    """
+    static, _ = spec.groups()[group]
+    rows = _group_rows(spec, group)
+    points = spec.points()
+    batch_rows = [points[r // spec.seeds] for r in rows]
+    cfg = module_config(spec, static)
+    keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
+    hp = adapter(spec.module).hyper(batch_rows)
+    sharding, pad = _batch_sharding(len(rows))
+    keys, hp = _pad((keys, hp), pad)
+    ck = None
+    if out is not None:
+        try:
+            ck = _checkpointer(spec, group, run_keys, out)
+        except CheckpointError as e:
+            raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
+                                  "starts over") from None
+        if ck.latest_step() is not None and not resume:
+            ck.close()
+            raise CheckpointError(f"{ck.directory}: holds a checkpoint of an earlier run; "
+                                  "pass --resume to continue it or --overwrite to start over")
+    report = None
+    if progress is not None:  # count the real runs, not the padding rows
+        def report(units: int) -> None:
+            progress(units * len(rows) // (len(rows) + pad))
+    try:
+        metrics, params = adapter(spec.module).train(cfg, keys, hp, spec, sharding, ck,
+                                                      report)
+    finally:
+        if ck is not None:
+            ck.close()
+    metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
+    finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
+                           len(rows)) & _finite_rows(metrics, len(rows)))
+    return {"metrics": metrics, "finite": finite, "rows": rows}
+
+
+def _group_rows(spec: SweepSpec, group: int) -> np.ndarray:
+    """The runs of a static group: indices into points x seeds (row ``point * seeds + seed``)."""
+    return np.asarray([p * spec.seeds + s for p in spec.groups()[group][1]
+                       for s in range(spec.seeds)])
+
+
+def split_run_keys(spec: SweepSpec, key: jax.Array | None = None) -> np.ndarray:
+    """Raw key data of every run: ``key`` (default ``jax.random.key(spec.seed)``) split once
+    into points x seeds."""
+    key = jax.random.key(spec.seed) if key is None else key
+    return np.asarray(jax.random.key_data(jax.random.split(key, len(spec.points())
+                                                           * spec.seeds)))
+
+
+def identity(spec: SweepSpec, group: int, run_keys: np.ndarray) -> dict:
+    """What a static group's checkpoints belong to: the spec, every point's whole assignment
+    (defaults included), the group's static config and the traced values of each of its runs
+    (every field of the hyperparameter pytree, defaults included), the run keys, the device
+    count, the code's fingerprint and the library versions. A resumed run must match it
+    exactly (``Checkpointer`` names the fields that differ)."""
+    static, idx = spec.groups()[group]
+    rows = _group_rows(spec, group)
+    points = spec.points()
+    hp = adapter(spec.module).hyper([points[r // spec.seeds] for r in rows])
+    traced = {jax.tree_util.keystr(path): np.asarray(leaf).tolist()
+              for path, leaf in jax.tree_util.tree_flatten_with_path(hp)[0]}
+    cfg = module_config(spec, static)
+    return {"spec": spec.to_json(), "group": group, "static": static,
+            "points": [points[i] for i in idx],
+            "config": json.loads(json.dumps(dataclasses.asdict(cfg), default=repr)),
+            "traced": traced, "rows": rows.tolist(), "devices": jax.local_device_count(),
+            "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest(),
+            "code": code_fingerprint(), "libraries": library_versions()}
+
+
+def _checkpointer(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path,
+                  read_only: bool = False) -> Checkpointer:
+    # a reader takes the arrays as they were trained, by whatever code; a resumed run must
+    # continue with the code and libraries it began with
+    return Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
+                        identity(spec, group, run_keys), read_only=read_only,
+                        ignore=("code", "libraries") if read_only else ())
+
+
+
+
+def restore_to_resume(ck: Checkpointer, like: Any) -> tuple[int, Any] | None:
+    """The newest intact step of a group (a damaged newer one is set aside, said on stderr),
+    or None when the group has no step yet."""
+    found = ck.restore_latest(like, fallback=True)
+    if found is not None:
+        for where in ck.set_aside_after(found[0]):
+            print(f"warning: resuming from step {found[0]}; the damaged step was moved to "
+                  f"{where}", file=sys.stderr, flush=True)
+    return found
+
+
+
+
+def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
+                   seed: int | None = None, key: jax.Array | None = None):
+    """The AL agents of a finished (or interrupted) sweep, from its checkpoints.
+
+    Args:
+        spec: the sweep, as it was run.
+        out: the parent folder it was run under.
+        seed: the seed it was run with, if not ``spec.seed``.
+        key: the key it was run with, if :func:`run` was given one.
+
+    Returns:
+        A list with, per point (``spec.points()`` order): ``(episode, agents [seeds],
+        hp)`` -- the latest checkpointed episode of its group, its runs' agents and their
+        hyperparameters (``al.ALHyper``, one row per run).
+    """
+    found_adapter = adapter(spec.module)
+    if found_adapter.saved_like is None:
+        raise SweepError(f"{spec.source}: module: trained_agents reads sweeps whose adapter "
+                         f"can read agents back (AL), not {spec.module!r}")
+    spec = spec if seed is None else dataclasses.replace(spec, seed=seed)
+    n_pts = len(spec.points())
+    run_keys = split_run_keys(spec, key)
+    folder = pathlib.Path(out) / spec.name
+    found: dict[int, tuple] = {}
+    for g, (static, idx) in enumerate(spec.groups()):
+        where = folder / "checkpoints" / f"group{g}"
+        if not (where / "steps").is_dir():
+            raise CheckpointError(f"{where}: no checkpoint; run the sweep first")
+        rows = _group_rows(spec, g)
+        keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
+        _, pad = _batch_sharding(len(rows))
+        keys = _pad(keys, pad)
+        cfg = module_config(spec, static)
+        with _checkpointer(spec, g, run_keys, folder, read_only=True) as ck:
+            latest = ck.restore_latest(found_adapter.saved_like(cfg, keys,
+                                                                   len(spec.evaluations())))
+        if latest is None:
+            raise CheckpointError(f"{where}: no checkpoint; run the sweep first")
+        step, saved = latest
+        for j, p in enumerate(idx):
+            take = slice(j * spec.seeds, (j + 1) * spec.seeds)
+            found[p] = (step, jax.tree.map(lambda x, t=take: x[t], saved["agents"]),
+                        adapter(spec.module).hyper([spec.points()[p]] * spec.seeds))
+    return [found[p] for p in range(n_pts)]
+
+
+def chunk_stops(episodes: int, chunk: int) -> list[int]:
+    """Chunk ends: equal chunks of the largest divisor of ``episodes`` that is <= ``chunk``
+    (one compiled shape), unless that divisor is under half of ``chunk`` -- then chunks of
+    ``chunk`` and a shorter last one (a second compile)."""
+    size = max(d for d in range(1, min(chunk, episodes) + 1) if episodes % d == 0)
+    if size < min(chunk, episodes) / 2:
+        size = chunk
+    return list(range(size, episodes, size)) + [episodes]
+
+
+
+
+def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: bool = False,
+        overwrite: bool = False, executor: str = "local", ray_address: str | None = None,
+        seed: int | None = None, show_progress: bool = True, key: jax.Array | None = None
+        ) -> dict:
+    """Run a sweep and write its results under ``out/<spec.name>``.
+
+    The sweep's folder is locked while the sweep runs (a second writer is refused, with this
+    one's pid); its result files (sweep.json, runs.csv, metrics.npz, the figure) replace the
+    earlier ones together, only once all of them are written.
+
+    Args:
+        spec: a validated sweep (:func:`load_spec`).
+        out: parent folder of the sweep's folder.
+        resume: continue from the sweep's checkpoints (bit-identical to an uninterrupted run;
+            a damaged newest step falls back to the newest intact one, and says so).
+        overwrite: delete the sweep's earlier checkpoints first (else they stop the run
+            unless ``resume``).
+        executor: ``"local"`` (this process, batch sharded over local devices) or ``"ray"``
+            (one Ray task per static group).
+        ray_address: Ray cluster address (None: the running one, else a local cluster).
+        seed: overrides ``spec.seed``.
+        show_progress: draw a tqdm progress bar.
+        key: the sweep's PRNG key (default ``jax.random.key(seed)``), e.g. one part of a
+            caller's split.
+
+    Returns:
+        The summary written to ``sweep.json``.
+
+    Raises:
+        SweepError: bad arguments, or an output folder that cannot be written.
+        CheckpointError: checkpoints of another run, damaged ones, or ones left without
+            ``resume``/``overwrite``.
+        FolderBusyError: another process is writing this sweep's folder.
+    """
+    if executor not in EXECUTORS:
+        raise SweepError(f"executor: unknown value {executor!r}; accepted values: {EXECUTORS}")
+    if resume and overwrite:
+        raise SweepError("resume and overwrite: choose one")
+    if seed is not None:
+        spec = dataclasses.replace(spec, seed=seed)
+    folder = pathlib.Path(out) / spec.name
+    if folder.exists() and not folder.is_dir():
+        raise SweepError(f"out: {folder} is a file, not a folder; name another --out")
+    with contextlib.ExitStack() as stack:
+        try:
+            stack.enter_context(_guard.folder_lock(folder, f"sweep {spec.name}"))
+        except OSError as e:
+            raise SweepError(f"out: cannot write {folder} ({e.strerror or e}); name a "
+                             "writable folder with --out") from None
+        return _run_locked(spec, folder, resume, overwrite, executor, ray_address,
+                           show_progress, key)
+
+
+def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: bool,
+                executor: str, ray_address: str | None, show_progress: bool,
+                key: jax.Array | None) -> dict:
+    if overwrite and (folder / "checkpoints").exists():
+        shutil.rmtree(folder / "checkpoints")
+    n_pts = len(spec.points())
+    run_keys = split_run_keys(spec, key)  # the one split
+    groups = spec.groups()
+    if resume and not any((folder / "checkpoints" / f"group{g}" / "steps").is_dir()
+                          and any((folder / "checkpoints" / f"group{g}" / "steps").iterdir())
+                          for g in range(len(groups))):
+        print(f"note: nothing to resume in {folder} (no checkpoint was completed); "
+              "starting from the beginning", file=sys.stderr, flush=True)
+    per_run = adapter(spec.module).length  # a group's static values hold the run length
+    total = sum(len(idx) * spec.seeds * per_run(s) for s, idx in groups)
+    t0 = time.perf_counter()
+    from tqdm.auto import tqdm
+
+    with tqdm(total=total, unit=adapter(spec.module).unit.rstrip("s"), desc=spec.name,
+              disable=not show_progress, dynamic_ncols=True, smoothing=0.1) as bar:
+        if executor == "ray":
+            results = _run_ray(spec, groups, run_keys, folder, resume, ray_address, bar, per_run)
+        else:
+            results = [run_group(spec, g, run_keys, folder, resume, bar.update)
+                       for g in range(len(groups))]
+    metrics, finite = _assemble(results, n_pts * spec.seeds)
+    summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
+               "groups": [{"static": s, "points": idx} for s, idx in groups],
+               "executor": executor, "devices": jax.local_device_count(),
+               "wall_s": time.perf_counter() - t0,
+               "diverged_runs": int((~finite).sum()), **summaries(spec, metrics, finite)}
+    try:
+        with Staged(folder).writing() as staged:
+            staged.write_text("runs.csv", csv_text(spec, summary))
+            write_sweep_figure(spec, summary, folder, staged)
+            staged.write_text("sweep.json", json.dumps(summary, indent=1) + "\n")
+            np.savez(staged.path("metrics.npz"), finite=finite, **metrics)
+    except OSError as e:
+        raise SweepError(f"out: cannot write the results in {folder} ({e.strerror or e}); "
+                         "the earlier results there and the checkpoints are kept") from None
+    return summary
+
+
+def _assemble(results: list[dict], n_rows: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The groups' metrics in one array per metric (row ``point * seeds + seed``). Groups of
+    other run lengths (a grid over a static length field) give curves of other lengths: the
+    shorter ones are padded with NaN."""
+    metrics = {}
+    for k in results[0]["metrics"]:
+        parts = [np.asarray(r["metrics"][k]) for r in results]
+        shape = tuple(max(d) for d in zip(*(a.shape[1:] for a in parts), strict=True))
+        ragged = any(a.shape[1:] != shape for a in parts)
+        dtype = np.result_type(parts[0].dtype, np.float32) if ragged else parts[0].dtype
+        arr = np.full((n_rows, *shape), np.nan, dtype) if ragged else np.zeros(
+            (n_rows, *shape), dtype)
+        for r, a in zip(results, parts, strict=True):
+            arr[(r["rows"], *(slice(0, d) for d in a.shape[1:]))] = a
+        metrics[k] = arr
+    finite = np.zeros(n_rows, bool)
+    for r in results:
+        finite[r["rows"]] = r["finite"]
+    return metrics, finite
+
+
+def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> list[dict]:
+    try:
+        import ray
+    except ImportError:
+        raise SweepError("executor: 'ray' needs Ray: pip install 'grounding-jax[ray]'") from None
+    if not ray.is_initialized():
+        ray.init(address=address)
+    task = ray.remote(_ray_task)
+    pending = {task.remote(spec, g, run_keys, str(folder), resume): g
+               for g in range(len(groups))}
+    results = []
+    while pending:
+        ready, _ = ray.wait(list(pending), num_returns=1)
+        g = pending.pop(ready[0])
+        results.append(ray.get(ready[0]))
+        s, idx = groups[g]
+        bar.update(len(idx) * spec.seeds * per_run(s))
+    return results
+
+
+def _ray_task(spec: SweepSpec, group: int, run_keys: np.ndarray, folder: str,
+              resume: bool) -> dict:
+    """A Ray worker's share: one static group (checkpoints in the shared output folder)."""
+    from grounding_jax.core.jaxcache import enable_compilation_cache
+
+    enable_compilation_cache()  # the worker is a process of ours, as the CLI is
+    return jax.device_get(run_group(spec, group, run_keys, pathlib.Path(folder), resume))
