@@ -50,12 +50,12 @@ PROFILES = {
               "tl_replication": _toml_grid("fig7_tl_replication", "replication"),
               "sweep_seeds": 5,
               # the paper's schedule is 150 + 300 episodes: success is measured there, and
-              # after 1200 (more did not help: README "Action learner"); >= 8 agents
+              # after 1200 (more did not help: docs/al.md); >= 8 agents
               "al_seeds": 8, "al_phase1": 150, "al_phase2": 1050, "al_no_tricks": 2000,
               "an_seeds": 5, "an_tl_epochs": 600,
               "xy_seeds": 3, "xy_scenes": 18000, "xy_hidden": 200, "xy_steps": 60000,
               # free family: phase 1 for half the run, chosen on tuning keys 11 and 12 (push
-              # 74 -> 89% and 54 -> 79%, touch 64 -> 51% and 26 -> 24%: README "Beyond")
+              # 74 -> 89% and 54 -> 79%, touch 64 -> 51% and 26 -> 24%: docs/beyond.md)
               "free_seeds": 8, "free_phase1": 1000, "free_phase2": 1000, "free_placements": 40,
               "free_eyes_placements": 20, "moving_scenes": 16, "free_an_scenes": 45,
               "free_an_seeds": 5},

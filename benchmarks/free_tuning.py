@@ -1,8 +1,8 @@
-"""Tuning runs of the free family's action learner (README "Beyond the paper", tuning table):
+"""Tuning runs of the free family's action learner (docs/beyond.md, tuning table):
 agents from a tuning key train on random placements with the shipped settings and schedule,
 then are judged greedily on every slot of held-out placements from another key.
 
-The keys are never train.py's (0): agents from ``--key`` (11 in the README's table), held-out
+The keys are never train.py's (0): agents from ``--key`` (11 in the docs' table), held-out
 placements from ``--eval-key`` (999). ``--push-reward pose`` trains push to reach for the
 pushing pose (minus the L1 distance to ``placement.push_pose``, as touch reaches for its
 touching pose) instead of the shipped reward (minus the palm's distance to the target's

@@ -11,13 +11,13 @@ home, for 100 steps. What varies is how it gets there:
 - *via*: the first 40 steps go to the pointing pose (above the target), then down;
 - *stop*: no action while the touch bit is on (the arm holds where it first touched).
 
-The result (README "Beyond the paper"): the pose is right (a gentle arrival touches almost
+The result (docs/beyond.md): the pose is right (a gentle arrival touches almost
 every target), and a fast arrival shoves the target instead -- the reason the free family
 acts with a smaller action scale.
 
 ``--action push`` sends the arm instead to the pushing pose of ``placement.push_pose`` (the
 map the free family's push reward reaches for: the palm at the target's near face), at the
-free family's action scale (``beyond.FREE_TUNED``; 0.2 for the README's table), gains 3 and
+free family's action scale (``beyond.FREE_TUNED``; 0.2 for the docs' table), gains 3 and
 1, judged by push's criterion (the target moved >= 2 cm, no wrong object moved).
 
 Usage:  python benchmarks/scripted_touch.py [--placements 12] [--key 999] [--action push]

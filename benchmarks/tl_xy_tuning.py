@@ -1,11 +1,11 @@
-"""Tuning runs of the continuous TL's learning rate (README "Beyond the paper"): one localizer
+"""Tuning runs of the continuous TL's learning rate (docs/beyond.md): one localizer
 per (lr, lr_final) point, all from the same key (the same train/test split and initial
 weights), trained in one ``vmap`` on the shipped scenes with train.py's paper-profile sizes
 (200 hidden units, 60,000 updates); held-out error in cm, overall and for the shape and the
 colour words.
 
 The keys are never train.py's (its localizers take theirs from ``jax.random.key(seed)``'s
-split): the README's rows come from ``--key 0`` and ``--key 1``.
+split): the docs' rows come from ``--key 0`` and ``--key 1``.
 
 Usage:  python benchmarks/tl_xy_tuning.py [--key 0] [--steps 60000]
         [--grid 1e-3:1,1e-3:0.01,3e-3:0.01]

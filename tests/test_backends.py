@@ -12,7 +12,7 @@ objects with torsional friction, the sphere with rolling friction):
   therefore hold the box/cylinder pushes to what does agree: the arm's path (0.08 rad), the
   palm-target distance (3.5 cm), which object moved (> 2 cm, the others < 1 mm), the step of
   first contact, and when a wrong-object bump ends the episode (within one step).
-See README ("Backends") for the full table.
+See docs/env.md for the full table.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
-"""The throughput benchmarks run end to end at a tiny batch on the CPU, so the commands in the
-README stay runnable (the GPU ones, e.g. ``benchmarks/env_throughput.py --backends mjx``, use the
-same code with the MJX env, which test_backends runs under jit/vmap/scan). They only measure;
-nothing here times anything."""
+"""The throughput benchmarks run end to end at a tiny batch on the CPU, so the commands in
+the documentation stay runnable (the GPU ones, e.g. ``benchmarks/env_throughput.py --backends
+mjx``, use the same code with the MJX env, which test_backends runs under jit/vmap/scan). They
+only measure; nothing here times anything."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def _rate(v) -> bool:
 def test_env_throughput_runs_at_a_tiny_batch(tmp_path):
     # the C backend only: an MJX row is the same code with backend="mjx" and costs a cold
     # MJX compile of its own (~40 s of CI); MJX's env runs under jit/vmap/scan in
-    # test_backends; the README's table comes from a run of both
+    # test_backends; the docs' table comes from a run of both
     res = _run("env_throughput", ["--batches", "2", "--backends", "mujoco",
                                   "--steps", "2", "--repeats", "1"], tmp_path)
     rows = {r["backend"]: r for r in res["rows"]}

@@ -123,8 +123,8 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert train.main(["--out", str(tmp_path / "nothing"), "--report-only"]) == 2
 
 
-def _readout_block(heading: str) -> str:
-    text = (ROOT / "README.md").read_text()
+def _readout_block(heading: str, page: str = "docs/robot.md") -> str:
+    text = (ROOT / page).read_text()
     section = text[text.index(heading):]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
@@ -132,10 +132,10 @@ def _readout_block(heading: str) -> str:
 def test_readme_example_loads_the_trained_robot_and_uses_it(quick, monkeypatch, capsys):
     import grounding_jax as gj
 
-    code = _readout_block("## Using the trained robot")
+    code = _readout_block("## Loading and performing")
     assert 'gj.load("results/quick/modules")' in code
     monkeypatch.chdir(quick.parent.parent)  # where results/quick/ is
-    exec(compile(code, "README.md", "exec"), {})
+    exec(compile(code, "docs/robot.md", "exec"), {})
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] in ("0", "1", "2")
     robot = gj.load(quick / "modules")
@@ -161,11 +161,11 @@ def test_the_perform_check_runs_every_saved_agent_on_the_same_episodes(quick, mo
 
 
 def test_readme_beyond_example_runs_on_the_committed_modules(monkeypatch):
-    code = _readout_block("**Acting anywhere")
+    code = _readout_block("**Acting anywhere", "docs/beyond.md")
     assert 'gj.load("results/paper/modules")' in code
     monkeypatch.chdir(ROOT)
     scope: dict = {}
-    exec(compile(code, "README.md", "exec"), scope)
+    exec(compile(code, "docs/beyond.md", "exec"), scope)
     out = scope["out"]
     assert out["named"][0] in ("point", "touch", "push") and out["xy"].shape == (2,)
     assert scope["robot"].free is not None and scope["sliding"].velocity is not None

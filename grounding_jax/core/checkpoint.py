@@ -444,6 +444,7 @@ class Checkpointer:
         return moved
 
     def close(self) -> None:
+        """Wait for pending saves and release the checkpoint manager."""
         if self.manager is not None:
             with contextlib.suppress(Exception):
                 self.manager.close()

@@ -30,7 +30,8 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> str | Non
 
     jax.config.update("jax_compilation_cache_dir", str(path))
     # cache every compile, even the short ones: a quick train.py run makes ~600 programs that
-    # each compile in under 0.5 s, and together they cost ~20 s in every process (README)
+    # each compile in under 0.5 s, and together they cost ~20 s in every process
+    # (docs/reproduction.md)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return str(path)

@@ -111,7 +111,7 @@ class TLHyper:
 
 
 #: The shipped input balance and learning rate, chosen on tuning keys disjoint from the
-#: reported ones (README, "Target localizer"); the defaults of :class:`TLHyper` are the paper's.
+#: reported ones (docs/tl.md); the defaults of :class:`TLHyper` are the paper's.
 TUNED = {"lr": 0.15, "image_scale": 0.6, "target_scale": 8.0}
 
 

@@ -190,8 +190,8 @@ class XYHyper:
         lr_final: the learning rate at the last step, as a fraction of ``lr``; it falls along
             a half cosine (1: constant).
 
-    The defaults were chosen on two tuning keys (``benchmarks/tl_xy_tuning.py``, README
-    "Beyond the paper"): against a constant 1e-3 the held-out median error fell by about a
+    The defaults were chosen on two tuning keys (``benchmarks/tl_xy_tuning.py``,
+    docs/beyond.md): against a constant 1e-3 the held-out median error fell by about a
     third and the 95th percentile by a tenth.
     """
 
@@ -200,6 +200,7 @@ class XYHyper:
     lr_final: Any = 0.01
 
     def validate(self) -> XYHyper:
+        """Check every field against its rule; raise ValueError naming the bad one."""
         check_rules(self, {"lr": POSITIVE, "symbol_scale": POSITIVE, "lr_final": UNIT_OPEN_LEFT})
         return self
 
@@ -375,6 +376,7 @@ def run(key: jax.Array, out: pathlib.Path, seeds: int = 3, config: XYConfig = XY
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Command line: train the continuous TL and print its held-out errors."""
     ap = argparse.ArgumentParser(description="Render and ship the continuous TL's scenes.")
     ap.add_argument("--regenerate", action="store_true", help="render and overwrite the data")
     args = ap.parse_args(argv)

@@ -217,7 +217,7 @@ def fig14(metrics: dict[str, np.ndarray], out, window: int = 50,
 
 
 #: Hyperparameters tuned here on all 9 tasks (the paper's lr 0.001 barely learns in our env;
-#: see README "Action learner"): the best of a grid over sigma, both learning rates and gamma
+#: see docs/al.md): the best of a grid over sigma, both learning rates and gamma
 #: (3 seeds x 1500 episodes per cell). sigma 0.3 learned faster per task but its exploration
 #: knocks the neighbouring objects, which ends most training episodes early.
 TUNED = {"actor_lr": 0.03, "critic_lr": 0.3, "sigma": 0.1, "gamma": 0.0}
@@ -226,7 +226,7 @@ TUNED = {"actor_lr": 0.03, "critic_lr": 0.3, "sigma": 0.1, "gamma": 0.0}
 #: changes together (8 agents, key 100) -- never on the agents train.py reports (seed 0):
 #: the actor is pulled toward the action the arm executed (without it, whole agents drove a
 #: joint into its limit and stayed there), its learning rate falls to 0.03x and sigma to 0.3x
-#: by the last episode (the precision point needs). README "Action learner" has the numbers.
+#: by the last episode (the precision point needs). docs/al.md has the numbers.
 TUNED_AL = {"actor_lr_decay": 0.03, "sigma_decay": 0.3, "executed_target": 1.0}
 
 

@@ -62,8 +62,7 @@ def env_config(backend: str = "mujoco") -> EnvConfig:
 
 #: The free family's networks: the paper's sizes, one actor-critic per action (one network
 #: for all three left some agents that never learned to point; without the hand units touch
-#: needed push's network beside it, with them it learns best alone: README "Beyond the
-#: paper").
+#: needed push's network beside it, with them it learns best alone: docs/beyond.md).
 FREE_LEARNER = cacla.CaclaConfig(task_set=tasks.FREE_HAND.name, heads=(0, 1, 2))
 
 
@@ -77,7 +76,7 @@ def config(phase1: int, phase2: int, backend: str = "mujoco") -> al.ALConfig:
 #: (``al_experiments.TUNED`` + ``TUNED_AL``) but for gamma, the actor's learning rate and the
 #: action's scale (finer steps: an arm that arrives gently touches without shoving), with
 #: touch's reward weights, chosen on tuning keys and seeds train.py never reports with
-#: (README "Beyond the paper"; ``sweeps/free_al_tuning.toml``).
+#: (docs/beyond.md; ``sweeps/free_al_tuning.toml``).
 FREE_TUNED = {**alx.TUNED, **alx.TUNED_AL, "gamma": 0.3, "actor_lr": 0.1, "action_scale": 0.15,
               "touch_moved_penalty": 10.0, "touch_bonus": 0.0}
 
@@ -316,7 +315,7 @@ def namer_data(agent, xy_params, xy_config, key: jax.Array, scenes: int, steps: 
 #: Reservoir units of the free family's namer. The paper's 50 served its 90 inputs (40 actor
 #: + 50 TL hidden units); the continuous TL has 200 hidden units, and 50 reservoir units left
 #: the actions inseparable (held-out scenes named right 68%, 88% with 100 units, 97% with 200:
-#: README "Beyond the paper").
+#: docs/beyond.md).
 FREE_NAMER_RES = 200
 
 

@@ -215,7 +215,8 @@ class Robot:
         The episode is compiled on the first call for a step count; later calls reuse it.
 
         Args:
-            action, word: the command ("push", "red").
+            action: the command's action ("push").
+            word: the command's target word ("red").
             layout: which shape and colour stands in each slot (0..35).
             steps: RL steps to act.
             key: PRNG key (the reset's; with ``placement="random"`` split once: placement,
@@ -366,10 +367,13 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
 
     Args:
         directory: the folder to write.
-        tl_params, tl_hyper: the TL (``hidden``, ``replication``, ``image_scale`` and
+        tl_params: the TL's parameters.
+        tl_hyper: its hyperparameters (``hidden``, ``replication``, ``image_scale`` and
             ``target_scale`` as scalars).
-        agent, al_config: one AL agent (unbatched).
-        net, esn_config: the AN with its fitted readout.
+        agent: one AL agent (unbatched).
+        al_config: its config.
+        net: the AN with its fitted readout.
+        esn_config: its config.
         env_config: the env the agent was trained in.
         extra: JSON-able notes kept in the config (e.g. the profile and seed).
         free_modules: the free family's robot, optional: ``{"xy_params", "xy_config"

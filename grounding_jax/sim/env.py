@@ -1,6 +1,6 @@
 """The point/touch/push environment as pure functions: ``reset(key, task)``, ``step(state, a)``.
 
-Semantics follow the paper (section 2.2; README "The scene" states what we measured here):
+Semantics follow the paper (section 2.2; docs/env.md states what we measured here):
 
 - observation (11): the 4 arm joints scaled to [-1, 1] by eq. 1 with the paper's limits, the
   touch bit (the arm touches an object), the action one-hot (point/touch/push) and the
@@ -473,7 +473,9 @@ class Env:
         Args:
             when: bool scalar: start a new episode.
             state: the current state (kept where ``when`` is false).
-            key, task, params: as for :meth:`reset`.
+            key: as for :meth:`reset`.
+            task: as for :meth:`reset`.
+            params: as for :meth:`reset`.
 
         Returns:
             The new or the unchanged :class:`State`.

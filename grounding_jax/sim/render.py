@@ -44,7 +44,8 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
         episode: a :meth:`Robot.perform` result (its ``trajectory``) or an env trajectory of
             one episode (``State`` with a leading steps axis, e.g. from ``jax.lax.scan``).
         camera: ``"observer"`` (third person) or ``"eye"`` (the robot's view, arm drawn).
-        width, height: frame size in pixels.
+        width: frame width in pixels.
+        height: frame height in pixels.
         every: draw every ``every``-th step.
         caption: text written on every frame (e.g. the command and what the robot named).
 
@@ -66,10 +67,13 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
     if caption:
         import cv2
 
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        (text_w, _), _ = cv2.getTextSize(caption, font, 0.45, 1)
+        scale = 0.45 * min(1.0, (width - 12) / text_w)  # the caption fits the frame
         for f in out:  # white text on a dark band at the bottom
             cv2.rectangle(f, (0, height - 22), (width, height), (30, 30, 30), -1)
-            cv2.putText(f, caption, (6, height - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                        (255, 255, 255), 1, cv2.LINE_AA)
+            cv2.putText(f, caption, (6, height - 7), font, scale, (255, 255, 255), 1,
+                        cv2.LINE_AA)
     return out
 
 

@@ -237,13 +237,13 @@ def _free_touch_reward(t: Terms, params: Any) -> jax.Array:
 
 def _free_push_reward(t: Terms, params: Any) -> jax.Array:
     # (minus the L1 to a pushing pose, ``push_l1``, as touch's, was tried and not kept:
-    # README "Beyond the paper")
+    # docs/beyond.md)
     return -t["palm_target_dist"] + _avoid(t, params)
 
 
 #: For objects placed anywhere: the actor is told the target's coordinates instead of its slot
 #: (the paper's proposed fix for its touch and push troubles), as a population code (the
-#: plain scaled (x, y) learned worse: README "Beyond the paper"). The success rules are the
+#: plain scaled (x, y) learned worse: docs/beyond.md). The success rules are the
 #: paper family's; the rewards differ in two ways: every action pays ``touch_other_penalty``
 #: while the arm touches a non-target object or one has moved (with objects anywhere no fixed
 #: detour around the neighbours exists), and touch, like point, reaches for a pose: minus the

@@ -120,6 +120,7 @@ class EyeRenderer:
         return np.flipud(rgb).copy()
 
     def close(self) -> None:
+        """Free the GL context and its buffers (the renderer cannot draw after this)."""
         self._mjr.free()
         self._ctx.free()
 

@@ -62,6 +62,7 @@ def summaries(spec: SweepSpec, metrics: dict[str, np.ndarray], finite: np.ndarra
 
 
 def csv_text(spec: SweepSpec, summary: dict) -> str:
+    """``runs.csv``: one row per run (grid values, seed, the metric, diverged, success rates)."""
     buf = io.StringIO()
     w = csv.writer(buf)
     names = [f"success_{k}" for k in adapter(spec.module).success] if "success" in summary \
@@ -88,6 +89,7 @@ def point_label(spec: SweepSpec, point: dict) -> str:
 
 
 def write_sweep_figure(spec: SweepSpec, summary: dict, out: pathlib.Path, staged: Staged) -> None:
+    """Stage the sweep's figure (``<figure>.png`` and its data as ``<figure>.json``)."""
     plt = pyplot()
     curves = "curves" in summary
     height = max(3.6, 0.3 * len(summary["points"])) if spec.design == "axes" else 3.6

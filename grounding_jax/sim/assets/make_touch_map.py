@@ -3,13 +3,13 @@
 
 The free family's touch reward is the L1 distance of the scaled joints to a pose for the
 target (``tasks.FREE``), as point's is to a pointing pose; the same for push was tried and not
-kept (README "Beyond the paper"; ``benchmarks/free_tuning.py --push-reward pose``).
+kept (docs/beyond.md; ``benchmarks/free_tuning.py --push-reward pose``).
 
 - A *touching* pose puts the palm site ``TOUCH_DEPTH`` below the top face of an object
   standing at (x, y): the palm presses down on the object's top, which the table holds still,
-  instead of shoving it sideways (1.25 cm since the tuning rows of README "Beyond the paper";
-  1 cm before). A scripted arm that moves gently to the 1 cm pose (README "Beyond the
-  paper") touches 94% of the held-out targets without moving them 3 cm.
+  instead of shoving it sideways (1.25 cm since the tuning rows of docs/beyond.md;
+  1 cm before). A scripted arm that moves gently to the 1 cm pose (docs/beyond.md) touches
+  94% of the held-out targets without moving them 3 cm.
 - A *pushing* pose puts the palm site ``PUSH_BEHIND`` on the robot's side of the object's
   centre, ``PUSH_RISE`` above it: the palm comes to the object's near face and, reaching the
   pose, has pushed it 1.5-2.5 cm away from the robot (``benchmarks/scripted_touch.py --action
@@ -62,7 +62,7 @@ PUSH_RISE = 0.005
 ITERS = 150  # IK iterations per start pose
 #: Touch map smoothing (``smooth_map``): the pull of each node's pose toward a polynomial fit
 #: of the map (``ik.solve_near``'s ``weight``; 0 turns smoothing off). Off in the shipped map:
-#: with 1e-3 touch pressed its target away more often (README "Beyond the paper") ...
+#: with 1e-3 touch pressed its target away more often (docs/beyond.md) ...
 SMOOTH_WEIGHT = 0.0
 #: ... of this total degree in (x, y).
 SMOOTH_DEGREE = 3
