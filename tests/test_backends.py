@@ -1,4 +1,4 @@
-"""The MJX and C MuJoCo backends agree (issue 3, item 4).
+"""The MJX and C MuJoCo backends agree (the agreement table).
 
 Measured on this scene (float32 MJX vs float64 C, 10 substeps of 5 ms per RL step; 300 g
 objects with torsional friction, the sphere with rolling friction):

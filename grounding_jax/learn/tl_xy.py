@@ -320,7 +320,7 @@ def hidden(params: XYParams, bitmaps: jax.Array, symbols: jax.Array, config: XYC
     return _hidden_of(params, inputs(bitmaps, symbols, config.replication, hp.symbol_scale))
 
 
-#: the issue's goals for the held-out error (cm)
+#: the goals for the held-out error (cm)
 GOAL_MEDIAN_CM, GOAL_P95_CM = 1.0, 2.5
 
 

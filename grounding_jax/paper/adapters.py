@@ -94,7 +94,7 @@ _METRICS = {
            "final_reward": "reward at the episode's last step",
            "return": "sum of rewards over the episode",
            "final_point_l1": "L1 distance to the pointing pose at the episode's end",
-           # evaluated at ``eval_at`` episodes (the greedy actor, the criteria):
+           # evaluated at ``eval_at`` episodes (the greedy actor, the success criteria):
            **{f"success_{k}": f"success rate: {v}" for k, v in (
                ("point", "point from home"), ("touch", "touch from home"),
                ("push", "push from home"), ("rand_point", "point from random starts"),

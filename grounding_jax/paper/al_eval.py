@@ -37,7 +37,7 @@ EVAL_STEPS = 100
 # the criteria live with the actions' success rules in tasks.py
 POINT_L1, POINT_STILL, POINT_MOVED = tasks.POINT_L1, tasks.POINT_STILL, tasks.POINT_MOVED
 STILL_LAST, TOUCH_MOVED, PUSH_MOVED = tasks.STILL_LAST, tasks.TOUCH_MOVED, tasks.PUSH_MOVED
-#: half-width (scaled joint units) of the random starts around home (Fig 11 and the issue)
+#: half-width (scaled joint units) of the random starts around home (Fig 11; the criteria)
 RANDOM_START_NOISE = 0.5
 
 #: The 6 layouts with colour order 0: every shape at every position once.

@@ -46,7 +46,7 @@ from grounding_jax.sim import placement as free
 from grounding_jax.sim import scene, tasks, tl_data
 from grounding_jax.sim.env import Env, EnvConfig, EnvParams, Task
 
-#: The issue's success goals on held-out placements.
+#: The success goals on held-out placements.
 GOALS = {"point": 0.90, "touch": 0.80, "push": 0.85}
 #: Speeds (m/s) of the moving-target experiment.
 SPEEDS = (0.0, 0.01, 0.02, 0.03)
