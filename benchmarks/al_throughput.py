@@ -225,37 +225,48 @@ def main() -> None:
     if args.mjx_batch:
         rows.append(bench_trainer("mjx", args.mjx_batch, args.mjx_episodes, args.loops[0]))
 
-    print("\n| trainer | agents | episodes | RL steps/s | × reference | ceiling: same physics "
-          "| % of it | ceiling: resting arm | % of it | time: physics / callback / networks+env "
-          "| compile (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    print(f"| sequential reference (NumPy + mj_step) | 1 at a time | {args.episodes} | "
-          f"{ref['rl_steps_per_s']:,.0f} | 1.00 | - | - | - | - | "
-          f"{ref['physics_share']:.0%} / - / {1 - ref['physics_share']:.0%} | - |")
     for r in rows:
         r["over_reference"] = r["rl_steps_per_s"] / ref["rl_steps_per_s"]
-        cells = []
         for kind in ("same_physics", "resting"):
             ceil = r.get(f"ceiling_{kind}_rl_steps_per_s")
             if ceil:
                 r[f"of_ceiling_{kind}"] = r["rl_steps_per_s"] / ceil
-            cells.append(f"{ceil:,.0f} | {_pct(r.get(f'of_ceiling_{kind}'))}" if ceil
-                         else "- | -")
-        split = r.get("split")
-        split_txt = " / ".join(_pct(split[k]) for k in split) if split else "-"
-        print(f"| vectorized, {r['backend']}, {r['loop']} | {r['batch']} | {r['episodes']} | "
-              f"{r['rl_steps_per_s']:,.0f} | {r['over_reference']:.2f} | {cells[0]} | "
-              f"{cells[1]} | {split_txt} | {r['compile_s']:.1f} |")
+    print("\n" + table({"reference": {**ref, "episodes": args.episodes}, "rows": rows}), end="")
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"substeps": SUBSTEPS, "cpu_count": os.cpu_count(), "platform": platform.platform(),
             **library_versions(),
             "devices": [str(d) for d in jax.devices()], "hyperparameters": HP}
     tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"meta": meta, "reference": ref, "rows": rows}, indent=2) + "\n")
+    tmp.write_text(json.dumps({"meta": meta, "reference": {**ref, "episodes": args.episodes},
+                               "rows": rows}, indent=2) + "\n")
     tmp.replace(out)
     print("wrote", out)
 
+
+
+def table(result: dict) -> str:
+    """The Markdown table of a run (``results/benchmarks/al_throughput.json``)."""
+    ref = result["reference"]
+    lines = ["| trainer | agents | episodes | RL steps/s | × reference | ceiling: same physics "
+             "| % of it | ceiling: resting arm | % of it | time: physics / callback / "
+             "networks+env | compile (s) |", "|---|---|---|---|---|---|---|---|---|---|---|",
+             f"| sequential reference (NumPy + mj_step) | 1 at a time | "
+             f"{ref.get('episodes', '-')} | {ref['rl_steps_per_s']:,.0f} | 1.00 | - | - | - | - | "
+             f"{ref['physics_share']:.0%} / - / {1 - ref['physics_share']:.0%} | - |"]
+    for r in result["rows"]:
+        cells = []
+        for kind in ("same_physics", "resting"):
+            ceil = r.get(f"ceiling_{kind}_rl_steps_per_s")
+            cells.append(f"{ceil:,.0f} | {_pct(r.get(f'of_ceiling_{kind}'))}" if ceil
+                         else "- | -")
+        split = r.get("split")
+        split_txt = " / ".join(_pct(split[k]) for k in split) if split else "-"
+        lines.append(f"| vectorized, {r['backend']}, {r['loop']} | {r['batch']} | "
+                     f"{r['episodes']} | {r['rl_steps_per_s']:,.0f} | "
+                     f"{r['over_reference']:.2f} | {cells[0]} | {cells[1]} | {split_txt} | "
+                     f"{r['compile_s']:.1f} |")
+    return "\n".join(lines) + "\n"
 
 if __name__ == "__main__":
     jnp.zeros(())  # initialise JAX before timing anything

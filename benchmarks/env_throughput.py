@@ -156,20 +156,7 @@ def main() -> None:
             print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
                               for k, v in row.items()}), flush=True)
 
-    print("\n| backend | batch | RL steps/s | physics steps/s | rollout alone | RL-step cost / "
-          "raw physics | compile cold (s) | compile warm (s) | warm/cold | XLA-only warm/cold |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        if "skipped" in r:
-            print(f"| {r['backend']} | {r['batch']} | skipped: {r['skipped']} ||||||||")
-            continue
-        alone = r.get("rollout_alone_physics_steps_per_s")
-        over = r.get("cost_over_raw_physics")
-        print(f"| {r['backend']} | {r['batch']} | {r['rl_steps_per_s']:,.0f} | "
-              f"{r['physics_steps_per_s']:,.0f} | {f'{alone:,.0f}' if alone else '-'} | "
-              f"{f'{over:.2f}x' if over else '-'} | {r['compile_cold_s']:.1f} | "
-              f"{r['compile_warm_s']:.2f} | {r['warm_over_cold']:.2f} | "
-              f"{r['xla_warm_over_cold']:.2f} |")
+    print("\n" + table({"rows": rows}), end="")
     print(f"\nraw mj_step loop: {mj:,.0f} physics steps/s")
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -180,6 +167,25 @@ def main() -> None:
                               indent=2) + "\n")
     print("wrote", out)
 
+
+
+def table(result: dict) -> str:
+    """The Markdown table of a run (``results/benchmarks/env_throughput.json``)."""
+    lines = ["| backend | batch | RL steps/s | physics steps/s | rollout alone | RL-step cost / "
+             "raw physics | compile cold (s) | compile warm (s) | warm/cold | XLA-only "
+             "warm/cold |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        if "skipped" in r:
+            lines.append(f"| {r['backend']} | {r['batch']} | skipped: {r['skipped']} ||||||||")
+            continue
+        alone = r.get("rollout_alone_physics_steps_per_s")
+        over = r.get("cost_over_raw_physics")
+        lines.append(f"| {r['backend']} | {r['batch']} | {r['rl_steps_per_s']:,.0f} | "
+                     f"{r['physics_steps_per_s']:,.0f} | {f'{alone:,.0f}' if alone else '-'} | "
+                     f"{f'{over:.2f}x' if over else '-'} | {r['compile_cold_s']:.1f} | "
+                     f"{r['compile_warm_s']:.2f} | {r['warm_over_cold']:.2f} | "
+                     f"{r['xla_warm_over_cold']:.2f} |")
+    return "\n".join(lines) + "\n"
 
 if __name__ == "__main__":
     main()

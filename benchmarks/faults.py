@@ -337,13 +337,20 @@ def main() -> None:
            "wall_s": time.perf_counter() - t0,
            "seed": args.seed, "libraries": library_versions()}
     atomic_write_text(pathlib.Path(args.out), json.dumps(out, indent=1) + "\n")
-    print("| fault | injected | identical | refused | wrong |\n|---|---|---|---|---|")
-    for s in summary:
-        print(f"| {s['fault']} | {s['injected']} | {s.get('identical', 0)} | "
-              f"{s.get('refused', 0)} | {s.get('WRONG', 0)} |")
+    print(table(out), end="")
     print(f"\nsignals landed: {landed}")
     print(f"\n{out['injected']} faults injected, {out['wrong']} wrong; wrote {args.out} "
           f"({out['wall_s']:.0f} s)")
+
+
+def table(result: dict) -> str:
+    """The Markdown table of a run (``results/benchmarks/faults.json``): per fault, how often
+    it was injected, resumed bit-identical, refused, or gave a wrong result."""
+    lines = ["| fault | injected | identical | refused | wrong |", "|---|---|---|---|---|"]
+    for s in result["summary"]:
+        lines.append(f"| {s['fault']} | {s['injected']} | {s.get('identical', 0)} | "
+                     f"{s.get('refused', 0)} | {s.get('WRONG', 0)} |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -216,3 +216,14 @@ def test_every_import_in_the_docs_examples_works():
                     except ImportError as e:
                         bad.append(f"{page.relative_to(ROOT)}: {line.strip()} ({e})")
     assert not bad, bad
+
+
+def test_the_docs_measured_tables_match_their_result_files():
+    import doc_tables
+
+    assert doc_tables.main(["--check"]) == 0
+    marked = re.findall(r"<!-- table: (\w+) -->",
+                        "".join(p.read_text() for p in (ROOT / "docs").glob("*.md")))
+    assert sorted(marked) == sorted(doc_tables.TABLES)
+    with pytest.raises(ValueError, match="unknown table 'nope'"):
+        doc_tables.rewrite("<!-- table: nope -->\nx\n<!-- end table -->", "page")
