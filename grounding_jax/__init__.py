@@ -7,14 +7,14 @@ the benchmarks switch on JAX's persistent compilation cache with
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from grounding_jax.robot.trained import Robot, load
     from grounding_jax.sim.env import Env, EnvConfig, EnvParams, State, Task, make_env, make_task
     from grounding_jax.sim.render import frames, write_video
 
+from grounding_jax.core._lazy import lazy_names
 from grounding_jax.core._version import __version__
 from grounding_jax.core.jaxcache import enable_compilation_cache
 
@@ -26,16 +26,7 @@ _LAZY = {**{n: "grounding_jax.sim.env" for n in ("Env", "EnvConfig", "EnvParams"
          "frames": "grounding_jax.sim.render", "write_video": "grounding_jax.sim.render"}
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'grounding_jax' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names("grounding_jax", _LAZY, globals())
 
 
 __all__ = ["Env", "EnvConfig", "EnvParams", "State", "Task", "make_env", "make_task",

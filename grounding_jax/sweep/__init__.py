@@ -8,8 +8,7 @@ before JAX loads.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from grounding_jax.core._lazy import lazy_names
 
 _LAZY = {
     **{n: "grounding_jax.sweep.spec" for n in (
@@ -23,16 +22,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'grounding_jax.sweep' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names("grounding_jax.sweep", _LAZY, globals())
 
 
 __all__ = sorted(_LAZY)
