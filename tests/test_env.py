@@ -37,7 +37,7 @@ def test_reset_observation(env_c):
     st = env_c.reset(jax.random.key(0), gj.make_task("touch", "right", 5))
     np.testing.assert_allclose(st.obs[:4], _paper_eq1(scene.HOME_POSE_DEG), atol=1e-5)
     np.testing.assert_array_equal(st.obs[4:], [0, 0, 1, 0, 0, 0, 1])
-    assert st.obs.shape == (gj.env.OBS_SIZE,) and not bool(st.done)
+    assert st.obs.shape == (env_mod.OBS_SIZE,) and not bool(st.done)
     # layout 5 = box, sphere... read the objects back from qpos: each shape at its slot
     slots = scene.layout_shape_slots()[5]
     idx = scene.index()
