@@ -23,6 +23,7 @@ from grounding_jax.sim import tasks
 #: the committed modules of the paper profile, in a checkout
 DEFAULT_MODULES = pathlib.Path(__file__).resolve().parents[1] / "results" / "paper" / "modules"
 PLACEMENTS = ("slots", "random")
+CAMERAS = ("observer", "eye")
 
 
 class ShowError(ValueError):
@@ -54,6 +55,8 @@ def _check(args: argparse.Namespace) -> None:
     if args.placement not in PLACEMENTS:
         raise ShowError(f"--placement: unknown value {args.placement!r}; accepted values: "
                         f"{PLACEMENTS}")
+    if args.camera not in CAMERAS:
+        raise ShowError(f"--camera: unknown value {args.camera!r}; accepted values: {CAMERAS}")
     for name in ("steps", "width", "height", "fps", "every"):
         if getattr(args, name) < 1:
             raise ShowError(f"--{name}: {getattr(args, name)} is not accepted; accepted: an "
@@ -127,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="video file to write: .mp4 or .gif")
     ap.add_argument("--strip", default=None, help="also write four frames side by side (.png)")
     ap.add_argument("--viewer", action="store_true", help="play it in MuJoCo's viewer")
-    ap.add_argument("--camera", default="observer", help="observer (third person) or eye")
+    ap.add_argument("--camera", default="observer",
+                    help=f"one of {CAMERAS}: third person, or the robot's eye (arm drawn)")
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--height", type=int, default=320)
     ap.add_argument("--fps", type=int, default=25)
