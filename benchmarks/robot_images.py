@@ -19,11 +19,9 @@ HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax.core._io import atomic_write_bytes  # noqa: E402
 from grounding_jax.paper.strips import COMMANDS, LAYOUT, write_strips  # noqa: E402
 from grounding_jax.sim import render  # noqa: E402
 
@@ -47,9 +45,7 @@ def main(argv: list[str] | None = None) -> int:
         if (action, word) == ("push", "red"):
             clip = render.frames(res, width=240, height=168, every=3, caption=caption)
             render.write_video(images / "push_red.gif", clip, fps=12)
-    ok, png = cv2.imencode(".png", np.ascontiguousarray(np.concatenate(rows)[..., ::-1]))
-    assert ok
-    atomic_write_bytes(images / "actions.png", png.tobytes())
+    render.write_png(images / "actions.png", np.concatenate(rows))
     print(f"wrote {images / 'actions.png'}, {images / 'push_red.gif'}")
     import train
 

@@ -95,9 +95,9 @@ def view(episode, fps: int = 25) -> None:
     import numpy as np
 
     from grounding_jax.sim import scene
-    from grounding_jax.sim.render import _trajectory
+    from grounding_jax.sim.render import trajectory_of
 
-    traj, qpos = _trajectory(episode)
+    traj, qpos = trajectory_of(episode)
     m = copy.copy(scene.model())
     shapes, colours = scene.LAYOUTS[int(np.asarray(traj.task.layout).reshape(-1)[0])]
     for shape, colour in zip(shapes, colours, strict=True):
@@ -145,7 +145,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     import jax
-    import numpy as np
 
     import grounding_jax as gj
     from grounding_jax.core.checkpoint import CheckpointError
@@ -180,13 +179,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             print(f"wrote {args.out} ({len(images)} frames, {args.width}x{args.height})")
         if args.strip:
-            import cv2
-
-            from grounding_jax.core._io import atomic_write_bytes
-
-            ok, png = cv2.imencode(".png", np.ascontiguousarray(
-                render.strip(images)[..., ::-1]))
-            atomic_write_bytes(pathlib.Path(args.strip), png.tobytes())
+            render.write_png(args.strip, render.strip(images))
             print(f"wrote {args.strip}")
     if args.viewer:
         view(result, args.fps)

@@ -5,9 +5,7 @@ from __future__ import annotations
 import pathlib
 
 import jax
-import numpy as np
 
-from grounding_jax.core._io import atomic_write_bytes
 from grounding_jax.robot.trained import Robot
 from grounding_jax.sim import render
 
@@ -30,8 +28,6 @@ def write_strips(robot: Robot, out: pathlib.Path, width: int = 320, height: int 
     Returns:
         ``{action: path relative to out}`` of the strips written.
     """
-    import cv2
-
     (out / FOLDER).mkdir(parents=True, exist_ok=True)
     written = {}
     for action, word in COMMANDS:
@@ -39,10 +35,7 @@ def write_strips(robot: Robot, out: pathlib.Path, width: int = 320, height: int 
         named = " ".join(res["named"])
         images = render.frames(res, width=width, height=height, every=33,
                                caption=f"heard: {action} {word}   named: {named}")
-        ok, png = cv2.imencode(".png", np.ascontiguousarray(render.strip(images)[..., ::-1]))
-        if not ok:
-            raise RuntimeError(f"could not encode the {action} strip as PNG")
-        atomic_write_bytes(out / FOLDER / f"{action}.png", png.tobytes())
+        render.write_png(out / FOLDER / f"{action}.png", render.strip(images))
         written[action] = f"{FOLDER}/{action}.png"
     return written
 

@@ -22,7 +22,13 @@ import numpy as np
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
-def _trajectory(episode: Any):
+def trajectory_of(episode: Any):
+    """``(trajectory, qpos [steps, nq])`` of a :meth:`Robot.perform` result or of a
+    one-episode env trajectory.
+
+    Raises:
+        ValueError: neither, or a batch of episodes.
+    """
     traj = episode["trajectory"] if isinstance(episode, dict) else episode
     qpos = getattr(traj, "qpos", None)
     if qpos is None:
@@ -57,7 +63,7 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
     for name, v in (("width", width), ("height", height), ("every", every)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ValueError(f"{name}: {v!r} is not accepted; accepted: an int >= 1")
-    traj, qpos = _trajectory(episode)
+    traj, qpos = trajectory_of(episode)
     layout = int(np.asarray(traj.task.layout).reshape(-1)[0])
     renderer = vision.EyeRenderer(width, height, camera=camera)
     try:
@@ -138,6 +144,21 @@ def write_video(path: str | os.PathLike, images: np.ndarray, fps: int = 25) -> p
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+    return path
+
+
+def write_png(path: str | os.PathLike, image: np.ndarray) -> pathlib.Path:
+    """Write an RGB image (``uint8 [height, width, 3]``, e.g. from :func:`strip`) as a PNG,
+    whole or not at all."""
+    import cv2
+
+    from grounding_jax.core._io import atomic_write_bytes
+
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(np.asarray(image)[..., ::-1]))
+    if not ok:
+        raise ValueError(f"image: cannot be encoded as PNG (shape {np.shape(image)})")
+    path = pathlib.Path(path)
+    atomic_write_bytes(path, png.tobytes())
     return path
 
 
