@@ -93,7 +93,7 @@ def params() -> EnvParams:
 
 def make_success(env: Env, key: jax.Array, placements: int):
     """``success(agents, key) -> out``: every action at every slot of ``placements``
-    held-out random placements (drawn from ``key``), as ``al_experiments.make_success``."""
+    held-out random placements (drawn from ``key``), as ``al_eval.make_success``."""
     return al_eval.make_success(env, batch=al_eval.free_tasks(key, placements))
 
 
