@@ -350,7 +350,7 @@ def train_namer(key: jax.Array, agent, xy_params, xy_config, scenes: int, seeds:
 # ----------------------------------------------------------------------- the whole robot's eyes
 def eyes_tasks(localize, key: jax.Array, placements: int,
                words: tuple[str, ...] = tasks.COLOURS) -> tuple[Task, np.ndarray]:
-    """:func:`al_experiments.free_tasks` with ``target_xy`` from the robot's eyes: each scene
+    """:func:`al_eval.free_tasks` with ``target_xy`` from the robot's eyes: each scene
     rendered by the eye camera at rest, each target named by the one of ``words`` that names
     it (its colour, or with ``tasks.SHAPES`` its shape), located by ``localize(rgb, layout,
     word) -> xy`` (e.g. ``TrainedFree.localize``).

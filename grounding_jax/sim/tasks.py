@@ -26,7 +26,7 @@ from the palm to the target's start; ``palm_target_now``: ... to where the targe
 and its distance from it across the table; ``touched_target`` / ``touched_other``: 0/1;
 ``target_moved``: metres the target has moved; ``arm_moved``: the scaled-joint L1 the arm moved
 in this step, 0 at reset) and the env's traced params.
-Success rules judge one greedy episode from the quantities ``al_experiments.episode_success``
+Success rules judge one greedy episode from the quantities ``al_eval.episode_success``
 measures (``final_point_l1``, ``point_l1_range``, ``touched_late``, ``target_moved``; an
 episode that moved a wrong object fails whatever the rule says).
 """
