@@ -354,9 +354,9 @@ def test_the_saved_agent_is_the_one_that_clears_every_goal_by_most():
 def test_a_sweep_trains_the_free_family_and_judges_it_on_held_out_placements(tmp_path,
                                                                              monkeypatch):
     from grounding_jax import sweep
-    from grounding_jax.paper import al_experiments
+    from grounding_jax.paper import al_eval
 
-    monkeypatch.setattr(al_experiments, "FREE_EVAL_PLACEMENTS", 1)  # 9 + 3 episodes per agent
+    monkeypatch.setattr(al_eval, "FREE_EVAL_PLACEMENTS", 1)  # 9 + 3 episodes per agent
     spec = sweep.parse_spec({
         "module": "al", "name": "free_tiny", "seeds": 2, "chunk": 2, "metric": "success_mean",
         "params": {"phase1_episodes": 1, "phase2_episodes": 1, "actor_hidden": 4,

@@ -4,6 +4,7 @@ mixed or silently changed (the long randomised version: benchmarks/faults.py).""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import pathlib
@@ -206,18 +207,21 @@ def test_resume_refuses_another_code_default_or_library_and_names_the_field(
     spec = sweep.load_spec(w / "tiny.toml")
     folder = w / "out" / "tiny" / "checkpoints"
     before = _tree(folder)
-    monkeypatch.setattr(sweep, "code_fingerprint", lambda: "0" * 64)
+    monkeypatch.setattr("grounding_jax.sweep.runner.code_fingerprint", lambda: "0" * 64)
     with pytest.raises(CheckpointError, match=r"fields that differ: code\b"):
         sweep.run(spec, w / "out", resume=True, show_progress=False)
     monkeypatch.undo()
     # a default the sweep file never names (sigma) changed in the code
-    fields = dict(sweep.FIELDS["al"])
-    fields["sigma"] = sweep.dataclasses.replace(fields["sigma"], default=0.2)
-    monkeypatch.setitem(sweep.FIELDS, "al", fields)
-    with pytest.raises(CheckpointError, match=r"points\[0\]\.sigma"):
-        sweep.run(spec, w / "out", resume=True, show_progress=False)
-    monkeypatch.undo()
-    monkeypatch.setattr(sweep, "library_versions", lambda: {"jax": "0.0"})
+    shipped = sweep.adapter("al")
+    fields = dict(shipped.fields)
+    fields["sigma"] = dataclasses.replace(fields["sigma"], default=0.2)
+    sweep.register("al", dataclasses.replace(shipped, fields=fields))
+    try:
+        with pytest.raises(CheckpointError, match=r"points\[0\]\.sigma"):
+            sweep.run(spec, w / "out", resume=True, show_progress=False)
+    finally:
+        sweep.register("al", shipped)
+    monkeypatch.setattr("grounding_jax.sweep.runner.library_versions", lambda: {"jax": "0.0"})
     with pytest.raises(CheckpointError, match=r"libraries\.jax"):
         sweep.run(spec, w / "out", resume=True, show_progress=False)
     assert _tree(folder) == before

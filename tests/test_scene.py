@@ -126,7 +126,8 @@ def test_eye_camera_sees_the_objects():
 ])
 def test_pointing_pose_settings_are_checked_before_the_search(argv, option, capsys):
     spec = importlib.util.spec_from_file_location(
-        "make_pointing_configs", pathlib.Path(__file__).parents[1] / "grounding_jax" / "assets"
+        "make_pointing_configs",
+        pathlib.Path(__file__).parents[1] / "grounding_jax" / "sim" / "assets"
         / "make_pointing_configs.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

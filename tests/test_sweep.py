@@ -320,7 +320,6 @@ def test_success_rates_are_recorded_at_the_evaluation_episodes(tmp_path):
 SUBPROCESS_SWEEP = textwrap.dedent("""
     import json, sys
     from grounding_jax import sweep
-from grounding_jax.paper import adapters
     spec = sweep.parse_spec(json.loads(sys.argv[1]))
     sweep.run(spec, sys.argv[2], resume=len(sys.argv) > 3, show_progress=False)
 """)
@@ -431,8 +430,6 @@ def test_corrupt_or_mismatched_checkpoints_are_refused_and_kept(tmp_path):
 def test_a_checkpoint_from_another_version_is_refused(tmp_path, monkeypatch):
     spec = _spec(TINY_TL, grid={"hidden": [3]})
     sweep.run(spec, tmp_path, show_progress=False)
-    import grounding_jax
-
-    monkeypatch.setattr(grounding_jax, "__version__", "9.9.9")
+    monkeypatch.setattr("grounding_jax.core._version.__version__", "9.9.9")
     with pytest.raises(CheckpointError, match="9.9.9"):
         sweep.run(spec, tmp_path, resume=True, show_progress=False)

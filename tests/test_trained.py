@@ -65,7 +65,7 @@ def test_load_refuses_what_it_cannot_use(tmp_path, modules, monkeypatch):
     cfg_path = tmp_path / "m" / "config.json"
     original = cfg_path.read_text()
     # another package version
-    monkeypatch.setattr(gj, "__version__", "0.0.1")
+    monkeypatch.setattr("grounding_jax.core._version.__version__", "0.0.1")
     with pytest.raises(CheckpointError, match="0.0.1"):
         gj.load(tmp_path / "m")
     monkeypatch.undo()

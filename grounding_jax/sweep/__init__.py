@@ -19,6 +19,8 @@ _LAZY = {
         "run", "run_group", "split_run_keys", "trained_agents", "chunk_stops", "identity",
         "restore_to_resume", "EXECUTORS")},
     **{n: "grounding_jax.sweep.summary" for n in ("point_label", "summaries")},
+    # the command line (python -m grounding_jax.sweep), callable in a process of your own
+    **{n: "grounding_jax.sweep.__main__" for n in ("main", "resume_command")},
 }
 
 
