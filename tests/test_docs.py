@@ -172,6 +172,20 @@ def test_the_video_command_line_writes_a_playable_file(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporaries
 
 
+def test_the_video_command_line_shows_objects_anywhere(tmp_path, monkeypatch, capsys):
+    from PIL import Image
+
+    from grounding_jax import show
+
+    monkeypatch.chdir(tmp_path)
+    assert show.main(["touch sphere", "--placement", "random", "--seed", "4", "--steps", "4",
+                      "--width", "64", "--height", "48", "--out", "touch.gif"]) == 0
+    out = capsys.readouterr().out
+    assert "touch sphere, layout 0 (random)" in out and "the robot named it: " in out
+    with Image.open(tmp_path / "touch.gif") as gif:
+        assert gif.n_frames == 4 and gif.size == (64, 48)
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["push rd", "--out", "x.mp4"], "unknown target 'rd'; accepted values"),
     (["jump red", "--out", "x.mp4"], "unknown action 'jump'; accepted values"),

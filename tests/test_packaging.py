@@ -82,13 +82,20 @@ try:
 except RuntimeError as e:  # no headless GL on this machine
     rendered = str(e)
 robot = gj.load({str(MODULES)!r})
+from grounding_jax import sweep  # its adapters come through the wheel's entry points
+spec = sweep.parse_spec({{"module": "tl", "grid": {{"hidden": [3]}}}})
+import grounding_jax.paper.adapters as adapters
 print(json.dumps({{"file": str(here), "obs": np.asarray(state.obs).tolist(),
                   "rendered": rendered, "red": robot.tl.localize(3, "red"),
-                  "truth": tl_data.label_of(3, tl_data.word_index("red"))}}))
+                  "truth": tl_data.label_of(3, tl_data.word_index("red")),
+                  "modules": sorted(sweep.FIELDS), "adapters": adapters.__file__,
+                  "points": len(spec.points())}}))
 """
     out = json.loads(_run(code, tmp_path, PYTHONPATH=str(installed)).splitlines()[-1])
     assert pathlib.Path(out["file"]).is_relative_to(installed.resolve())  # not the checkout
     assert len(out["obs"]) == 11 and all(map(lambda v: v == v, out["obs"]))
+    assert out["modules"] == ["al", "tl"] and out["points"] == 1
+    assert pathlib.Path(out["adapters"]).is_relative_to(installed.resolve())
     if isinstance(out["rendered"], str):
         pytest.skip(f"no headless OpenGL backend: {out['rendered']}")
     assert out["rendered"] is True  # the camera sees what the shipped bitmaps hold
