@@ -24,6 +24,7 @@ TABLES = {
     "faults": ("results/benchmarks/faults.json", "faults"),
     "env_throughput": ("results/benchmarks/env_throughput.json", "env_throughput"),
     "al_throughput": ("results/benchmarks/al_throughput.json", "al_throughput"),
+    "tl_throughput": ("results/benchmarks/tl_throughput.json", "tl_throughput"),
 }
 BLOCK = re.compile(r"(<!-- table: (\w+) -->\n).*?(<!-- end table -->)", re.S)
 

@@ -143,7 +143,20 @@ def main() -> None:
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=2) + "\n")
+    print("\n" + table(res), end="")
     print("wrote", out)
+
+
+def table(result: dict) -> str:
+    """The Markdown table of a run (``results/benchmarks/tl_throughput.json``)."""
+    r = result
+    return "\n".join([
+        "| way | compile (s) | run (s) | run speed-up over NumPy |", "|---|---|---|---|",
+        f"| sequential NumPy MLPs (baseline) | – | {r['numpy_run_s']:.0f} | 1× |",
+        f"| padded to H={max(r['hidden'])}, one compile | {r['padded_compile_s']:.1f} | "
+        f"{r['padded_run_s']:.1f} | {r['speedup_padded_vs_numpy']:.1f}× |",
+        f"| one compile per hidden size (kept) | {r['grouped_compile_s']:.1f} | "
+        f"{r['grouped_run_s']:.1f} | {r['speedup_grouped_vs_numpy']:.1f}× |"]) + "\n"
 
 
 if __name__ == "__main__":
