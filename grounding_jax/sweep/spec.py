@@ -139,9 +139,10 @@ def register(name: str, adapter: Adapter) -> None:
 def adapters() -> dict[str, Adapter]:
     """The registered adapters by module name; the entry points' are loaded on first use."""
     if not _LOADED[0]:
-        _LOADED[0] = True
         for ep in metadata.entry_points(group=ENTRY_POINTS):
-            _REGISTRY.setdefault(ep.name, ep.load())
+            if ep.name not in _REGISTRY:  # one registered in the program comes first
+                _REGISTRY[ep.name] = ep.load()
+        _LOADED[0] = True  # only once all loaded: a failed load is raised again next time
     return _REGISTRY
 
 
