@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import pathlib
@@ -433,3 +434,53 @@ def test_a_checkpoint_from_another_version_is_refused(tmp_path, monkeypatch):
     monkeypatch.setattr("grounding_jax.core._version.__version__", "9.9.9")
     with pytest.raises(CheckpointError, match="9.9.9"):
         sweep.run(spec, tmp_path, resume=True, show_progress=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class _QuadConfig:
+    steps: int
+
+
+def _quad_train(cfg, keys, hp, spec, sharding, ck, progress):
+    """Gradient descent on x**2 from a random start: the loss falls faster with a larger lr."""
+    def one(key, lr):
+        def body(x, _):
+            return x - lr * 2 * x, None
+
+        x, _ = jax.lax.scan(body, jax.random.normal(key), None, length=cfg.steps)
+        return x, {"final_loss": x ** 2}
+
+    params, metrics = jax.jit(jax.vmap(one))(keys, hp)
+    if progress:
+        progress(keys.shape[0] * cfg.steps)
+    return metrics, params
+
+
+def test_a_module_of_ones_own_runs_through_the_same_runner(tmp_path, monkeypatch):
+    """The runner knows modules only through adapters: one registered here is checked,
+    grouped, batched and summarised like the package's own."""
+    import jax.numpy as jnp
+
+    from grounding_jax.sweep import spec as spec_module
+
+    quad = sweep.Adapter(
+        fields={"steps": sweep.Field("static", int, 5, "an int >= 1", lambda v: v >= 1),
+                "lr": sweep.Field("traced", float, 0.1, "in (0, 0.5]", lambda v: 0 < v <= 0.5)},
+        metrics={"loss": "x**2 after the steps"}, unit="steps", length=lambda p: p["steps"],
+        config=lambda points, static: _QuadConfig(static["steps"]),
+        hyper=lambda rows: jnp.asarray([r["lr"] for r in rows], jnp.float32),
+        train=_quad_train, lower_is_better=frozenset({"loss"}))
+    sweep.adapters()  # the package's own first, then ours beside them
+    monkeypatch.setitem(spec_module._REGISTRY, "quad", quad)
+    with pytest.raises(sweep.SweepError, match=r"grid\.lr: must be in \(0, 0\.5\], got 0\.9"):
+        sweep.parse_spec({"module": "quad", "grid": {"lr": [0.1, 0.9]}})
+    spec = sweep.parse_spec({"module": "quad", "name": "quad", "seeds": 3,
+                             "grid": {"lr": [0.05, 0.4], "steps": [2, 4]}})
+    assert len(spec.groups()) == 2  # one compile per static steps value
+    summary = sweep.run(spec, tmp_path, show_progress=False)
+    assert summary["best"] == {"lr": 0.4, "steps": 4}
+    means = {(p["point"]["lr"], p["point"]["steps"]): p["mean"] for p in summary["points"]}
+    assert means[(0.4, 4)] < means[(0.4, 2)] < means[(0.05, 2)]
+    assert (tmp_path / "quad" / "runs.csv").read_text().count("\n") == 1 + 4 * 3
+    with pytest.raises(sweep.SweepError, match="unknown module 'nope'.*'quad'"):
+        sweep.parse_spec({"module": "nope", "grid": {"lr": [0.1]}})
