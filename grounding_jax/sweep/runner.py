@@ -169,7 +169,8 @@ def restore_to_resume(ck: Checkpointer, like: Any) -> tuple[int, Any] | None:
 
 def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
                    seed: int | None = None, key: jax.Array | None = None):
-    """The AL agents of a finished (or interrupted) sweep, from its checkpoints.
+    """The trained agents of a finished (or interrupted) sweep, from its checkpoints (a
+    module whose adapter can read them back: ``saved_like``, as the AL's).
 
     Args:
         spec: the sweep, as it was run.
@@ -180,7 +181,7 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
     Returns:
         A list with, per point (``spec.points()`` order): ``(episode, agents [seeds],
         hp)`` -- the latest checkpointed episode of its group, its runs' agents and their
-        hyperparameters (``al.ALHyper``, one row per run).
+        hyperparameters (the adapter's, e.g. ``al.ALHyper``; one row per run).
     """
     found_adapter = adapter(spec.module)
     if found_adapter.saved_like is None:
@@ -209,7 +210,7 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
         for j, p in enumerate(idx):
             take = slice(j * spec.seeds, (j + 1) * spec.seeds)
             found[p] = (step, jax.tree.map(lambda x, t=take: x[t], saved["agents"]),
-                        adapter(spec.module).hyper([spec.points()[p]] * spec.seeds))
+                        found_adapter.hyper([spec.points()[p]] * spec.seeds))
     return [found[p] for p in range(n_pts)]
 
 
