@@ -92,16 +92,13 @@ def view(episode, fps: int = 25) -> None:
 
     import mujoco
     import mujoco.viewer
-    import numpy as np
 
     from grounding_jax.sim import scene
     from grounding_jax.sim.render import trajectory_of
 
-    traj, qpos = trajectory_of(episode)
+    qpos, layout = trajectory_of(episode)
     m = copy.copy(scene.model())
-    shapes, colours = scene.LAYOUTS[int(np.asarray(traj.task.layout).reshape(-1)[0])]
-    for shape, colour in zip(shapes, colours, strict=True):
-        m.geom_rgba[m.geom(f"{shape}_geom").id] = scene.COLOUR_RGBA[colour]
+    scene.paint_layout(m, layout)
     d = mujoco.MjData(m)
     with mujoco.viewer.launch_passive(m, d) as v:
         for q in qpos:

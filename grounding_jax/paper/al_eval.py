@@ -237,7 +237,8 @@ def make_success_rates(env: Env | EnvConfig = DEFAULT_ENV, batch: int = 8,
 
 
 # ------------------------------------------------------------------------------ experiments
-def _take(tree, i: int):
+def take(tree, i: int):
+    """Agent ``i`` of a batch of agents (every leaf's row ``i``)."""
     return jax.tree.map(lambda x: x[i], tree)
 
 

@@ -30,7 +30,7 @@ from grounding_jax.paper.al_eval import (
     make_switch_success,
     success_table,
 )
-from grounding_jax.paper.al_eval import _take as take_agent
+from grounding_jax.paper.al_eval import take as take_agent
 from grounding_jax.sim import rollout, scene, scripted
 from grounding_jax.sim.env import (
     DEFAULT_PARAMS,

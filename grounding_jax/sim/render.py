@@ -22,9 +22,9 @@ import numpy as np
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
-def trajectory_of(episode: Any):
-    """``(trajectory, qpos [steps, nq])`` of a :meth:`Robot.perform` result or of a
-    one-episode env trajectory.
+def trajectory_of(episode: Any) -> tuple[np.ndarray, int]:
+    """``(qpos [steps, nq], layout)`` of a :meth:`Robot.perform` result or of a one-episode
+    env trajectory.
 
     Raises:
         ValueError: neither, or a batch of episodes.
@@ -39,7 +39,7 @@ def trajectory_of(episode: Any):
         raise ValueError(f"episode: one episode's trajectory has qpos [steps, nq]; got shape "
                          f"{qpos.shape} (take one episode of a batch first, e.g. "
                          "jax.tree.map(lambda x: x[0], trajectory))")
-    return traj, qpos
+    return qpos, int(np.asarray(traj.task.layout).reshape(-1)[0])
 
 
 def frames(episode: Any, camera: str = "observer", width: int = 480, height: int = 320,
@@ -63,8 +63,7 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
     for name, v in (("width", width), ("height", height), ("every", every)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ValueError(f"{name}: {v!r} is not accepted; accepted: an int >= 1")
-    traj, qpos = trajectory_of(episode)
-    layout = int(np.asarray(traj.task.layout).reshape(-1)[0])
+    qpos, layout = trajectory_of(episode)
     renderer = vision.EyeRenderer(width, height, camera=camera)
     try:
         out = np.stack([renderer.render(layout, qpos=q, arm=True) for q in qpos[::every]])

@@ -293,6 +293,14 @@ def layout_name(i: int) -> str:
     return " ".join(f"{s}/{c}" for s, c in zip(shapes, colours, strict=True))
 
 
+def paint_layout(m: mujoco.MjModel, layout: int) -> None:
+    """Colour the objects of (a private copy of) the model as in ``layout`` (0..35): colour
+    is data, not model structure, so the renderers paint it in."""
+    shapes, colours = LAYOUTS[layout]
+    for shape, colour in zip(shapes, colours, strict=True):
+        m.geom_rgba[m.geom(f"{shape}_geom").id] = COLOUR_RGBA[colour]
+
+
 def home_qpos() -> np.ndarray:
     """Full ``qpos`` with the arm at home and the objects of layout 0 at rest."""
     m, idx = model(), index()

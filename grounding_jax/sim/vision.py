@@ -100,9 +100,7 @@ class EyeRenderer:
             arm: draw the robot's meshes too (for people; the bitmaps never show the arm).
         """
         m, d = self.model, self.data
-        shapes, colours = scene.LAYOUTS[layout]
-        for shape, colour in zip(shapes, colours, strict=True):
-            m.geom_rgba[m.geom(f"{shape}_geom").id] = scene.COLOUR_RGBA[colour]
+        scene.paint_layout(m, layout)
         if qpos is not None:
             d.qpos[:] = qpos
         else:
