@@ -347,7 +347,9 @@ class Checkpointer:
 
     def restore(self, step: int, like: Any) -> Any:
         """The tree saved at ``step``, with the structure, shapes and dtypes of ``like``,
-        after checking the step against its manifest.
+        after checking the step against its manifest. ``like`` may be a function of the
+        manifest's ``arrays`` (path -> shape, dtype) that returns it, for arrays whose shape
+        only the step knows.
 
         Raises:
             DamagedStepError: the step is not sealed, or a file or an array differs from its
@@ -355,6 +357,8 @@ class Checkpointer:
             CheckpointError: arrays that do not match ``like``.
         """
         manifest = self._manifest(step)
+        if callable(like):  # a tree whose shapes the step itself records
+            like = like(manifest["arrays"])
         where = self.directory / "steps" / str(step)
         files = _file_digests(where)
         bad_files = sorted(n for n in set(files) | set(manifest["files"])

@@ -353,12 +353,66 @@ def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None
     """The key split once: (initial learner state -- the learner's ``init`` with ``hp`` --,
     one key per episode, the per-episode plan: ``phase1`` flags and ``progress`` 0 -> 1)."""
     k_init, k_eps = jax.random.split(key)
-    e = jnp.arange(config.episodes)
-    plan = {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
-            "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
+    plan = _plan(config, jnp.arange(config.episodes))
     hp = ALHyper(learner=config.learning.hyper_type()) if hp is None else hp
     agent = _check_learner(config, hp).init(k_init, config.learner, hp.learner)
     return agent, jax.random.split(k_eps, config.episodes), plan
+
+
+def _plan(config: ALConfig, e: jax.Array) -> dict[str, jax.Array]:
+    """The plan of episodes ``e``: ``phase1`` flags and ``progress`` 0 -> 1 over the run."""
+    return {"phase1": (e < config.phase1_episodes).astype(jnp.float32),
+            "progress": e.astype(jnp.float32) / max(config.episodes - 1, 1)}
+
+
+def make_pieces(config: ALConfig, loop: str = "auto_reset"):
+    """Build ``(start, advance)``: a batch of agents trained piece by piece, each agent at its
+    own episode -- what a search needs to stop a run, start another in its place, or copy an
+    agent into another run at a chunk's end without compiling again.
+
+    ``start(keys, hp) -> state`` splits each key as :func:`make_train` does: ``state`` is
+    ``{"agent": [agents], "keys": one key per episode [agents, episodes], "done": episodes
+    trained [agents]}``. ``advance(state, hp, episodes) -> (state, metrics)`` trains every
+    agent ``episodes`` more of its own episodes (its phase and decays follow its own count;
+    ``hp`` per agent) and returns the metrics ``[agents, episodes]`` of :func:`make_train`.
+    An agent trained to the end this way has seen the same episodes as one trained by
+    :func:`make_train` with its key.
+    """
+    _check_loop(loop)
+
+    def start(keys: jax.Array, hp: ALHyper) -> dict[str, Any]:
+        axes, treedef = _hp_layout(hp)
+        agent, ep_keys, _ = _batched_schedule(config, axes, treedef)(keys, hp)
+        return {"agent": agent, "keys": ep_keys,
+                "done": jnp.zeros(keys.shape[:1], jnp.int32)}
+
+    def advance(state: dict[str, Any], hp: ALHyper, episodes: int):
+        axes, treedef = _hp_layout(hp)
+        agent, metrics = _batched_pieces(config, axes, treedef, int(episodes), loop)(
+            state["agent"], state["keys"], state["done"], hp)
+        return {**state, "agent": agent, "done": state["done"] + episodes}, metrics
+
+    return start, advance
+
+
+def _hp_layout(hp: ALHyper) -> tuple[tuple, Any]:
+    axes, treedef = jax.tree.flatten(jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, hp),
+                                     is_leaf=lambda x: x is None)
+    return tuple(axes), treedef
+
+
+@functools.lru_cache(maxsize=16)
+def _batched_pieces(config: ALConfig, hp_axes: tuple, hp_treedef, episodes: int, loop: str):
+    """``jit(vmap(...))`` of ``episodes`` episodes of each agent from its own count,
+    cached like :func:`_batched_episodes`."""
+    run = _loop_maker(loop)(config)
+
+    def one(agent, keys, done, hp):
+        plan = _plan(config, done + jnp.arange(episodes))
+        return run(agent, jax.lax.dynamic_slice_in_dim(keys, done, episodes), plan, hp)
+
+    axes = jax.tree.unflatten(hp_treedef, hp_axes)
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, axes)))
 
 
 def _loop_maker(loop: str):

@@ -8,6 +8,7 @@ They reach the runner through the package's ``grounding_jax.sweep_adapters`` ent
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import jax
@@ -20,8 +21,8 @@ from grounding_jax.paper import al_eval
 from grounding_jax.paper.beyond import FREE_LEARNER
 from grounding_jax.sim import env, physics, tl_data
 from grounding_jax.sim.env import EnvConfig, EnvParams
-from grounding_jax.sweep.runner import chunk_stops, restore_to_resume
-from grounding_jax.sweep.spec import Adapter, Field, SweepSpec, field_from, traced_fields
+from grounding_jax.sweep.batching import chunk_stops, restore_to_resume
+from grounding_jax.sweep.spec import Adapter, Field, Pieces, SweepSpec, field_from, traced_fields
 
 #: the random starts of the success evaluation are drawn from this fixed key -- the same
 #: evaluation set for every run and sweep, as a test set is
@@ -102,7 +103,6 @@ _METRICS = {
     "tl": {"test_acc": "test accuracy", "train_acc": "training accuracy",
            "test_rmse": "test RMSE per output unit", "train_rmse": "training RMSE"},
 }
-#: metrics where lower is better (for the others higher is)
 #: metrics where lower is better (for the others higher is)
 LOWER_IS_BETTER = frozenset({"td_error", "final_point_l1", "test_rmse", "train_rmse"})
 
@@ -221,11 +221,26 @@ def _run_tl(cfg: tl.TLConfig, keys, hp, spec: SweepSpec, sharding, ck, progress)
 
 
 
+@functools.lru_cache(maxsize=8)
+def _al_pieces(cfg: al.ALConfig) -> Pieces:
+    """The AL trained piece by piece (ASHA, PBT), its success rates measured as a grid's are
+    (the same evaluation set, :data:`EVAL_SEED`)."""
+    start, advance = al.make_pieces(cfg)
+    found = []
+
+    def rates(state, hp) -> dict:
+        if not found:  # built on first use: a search ranking by a curve never needs it
+            found.append(al_eval.make_success_rates(cfg.env))
+        return found[0](state["agent"], jax.random.key(EVAL_SEED), hp.env)
+
+    return Pieces(start, advance, rates)
+
+
 #: the action learner: the paper's (fixed slots) and the free family's (``placement = "random"``)
 AL = Adapter(_FIELDS["al"], _METRICS["al"], "episodes",
              lambda p: p["phase1_episodes"] + p["phase2_episodes"], _al_config, _al_hyper,
              _run_al, curves=True, evaluates=True, success=al_eval.SUCCESS_METRICS,
-             lower_is_better=LOWER_IS_BETTER, saved_like=_al_saved_like)
+             lower_is_better=LOWER_IS_BETTER, saved_like=_al_saved_like, pieces=_al_pieces)
 #: the target localizer
 TL = Adapter(_FIELDS["tl"], _METRICS["tl"], "epochs", lambda p: p["epochs"], _tl_config,
              tl.stack_hyper, _run_tl, lower_is_better=LOWER_IS_BETTER)

@@ -24,39 +24,18 @@ import numpy as np
 from grounding_jax.core import _guard
 from grounding_jax.core._io import Staged, code_fingerprint, library_versions
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError
+from grounding_jax.sweep.batching import assemble, batch_sharding, finite_rows, pad_rows
 from grounding_jax.sweep.spec import SweepError, SweepSpec, adapter, module_config
 from grounding_jax.sweep.summary import csv_text, summaries, write_sweep_figure
 
 EXECUTORS = ("local", "ray")
-
-
-def _batch_sharding(batch: int):
-    """(sharding of a leading batch axis over all local devices, padding rows needed)."""
-    devices = jax.local_devices()
-    mesh = jax.sharding.Mesh(np.asarray(devices), ("batch",))
-    return (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch")),
-            (-batch) % len(devices))
-
-
-def _pad(tree, pad: int):
-    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[:1], pad, 0)])
-                        if pad and jnp.ndim(x) else x,
-                        tree)
-
-
-def _finite_rows(tree, batch: int) -> np.ndarray:
-    """Per row: every float leaf of the tree finite."""
-    ok = np.ones(batch, bool)
-    for leaf in jax.tree.leaves(tree):
-        a = np.asarray(leaf)
-        if np.issubdtype(a.dtype, np.floating):
-            ok &= np.isfinite(a.reshape(batch, -1)).all(1)
-    return ok
+#: what the held-out key of a grid is folded from the sweep's key with
+HOLDOUT_STREAM = 0x484F4C44
 
 
 def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path | None,
-              resume: bool = False, progress: Callable[[int], None] | None = None
-              ) -> dict[str, np.ndarray]:
+              resume: bool = False, progress: Callable[[int], None] | None = None,
+              config: Any = None) -> dict[str, np.ndarray]:
     """Train one static group: its points x seeds as one sharded, vmapped batch.
 
     Args:
@@ -67,6 +46,8 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
         out: the sweep's output folder (checkpoints under ``out/checkpoints``); None: none.
         resume: continue from this group's checkpoint if there is one.
         progress: called with the number of run-episodes (AL) or run-epochs (TL) just done.
+        config: the group's static config, if not the one its points need (a search builds
+            one that holds its whole space, so that every batch has one shape).
 
     Returns:
         ``metrics`` (each ``[rows, ...]``), ``finite`` ``[rows]`` and ``rows`` (indices into
@@ -76,15 +57,15 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
     rows = _group_rows(spec, group)
     points = spec.points()
     batch_rows = [points[r // spec.seeds] for r in rows]
-    cfg = module_config(spec, static)
+    cfg = module_config(spec, static) if config is None else config
     keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
     hp = adapter(spec.module).hyper(batch_rows)
-    sharding, pad = _batch_sharding(len(rows))
-    keys, hp = _pad((keys, hp), pad)
+    sharding, pad = batch_sharding(len(rows))
+    keys, hp = pad_rows((keys, hp), pad)
     ck = None
     if out is not None:
         try:
-            ck = _checkpointer(spec, group, run_keys, out)
+            ck = _checkpointer(spec, group, run_keys, out, config=config)
         except CheckpointError as e:
             raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
                                   "starts over") from None
@@ -103,8 +84,8 @@ def run_group(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Pa
         if ck is not None:
             ck.close()
     metrics = jax.tree.map(lambda x: np.asarray(x)[: len(rows)], metrics)
-    finite = (_finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
-                           len(rows)) & _finite_rows(metrics, len(rows)))
+    finite = (finite_rows(jax.tree.map(lambda x: np.asarray(x)[: len(rows)], params),
+                           len(rows)) & finite_rows(metrics, len(rows)))
     return {"metrics": metrics, "finite": finite, "rows": rows}
 
 
@@ -122,7 +103,7 @@ def split_run_keys(spec: SweepSpec, key: jax.Array | None = None) -> np.ndarray:
                                                            * spec.seeds)))
 
 
-def identity(spec: SweepSpec, group: int, run_keys: np.ndarray) -> dict:
+def identity(spec: SweepSpec, group: int, run_keys: np.ndarray, config: Any = None) -> dict:
     """What a static group's checkpoints belong to: the spec, every point's whole assignment
     (defaults included), the group's static config and the traced values of each of its runs
     (every field of the hyperparameter pytree, defaults included), the run keys, the device
@@ -134,7 +115,7 @@ def identity(spec: SweepSpec, group: int, run_keys: np.ndarray) -> dict:
     hp = adapter(spec.module).hyper([points[r // spec.seeds] for r in rows])
     traced = {jax.tree_util.keystr(path): np.asarray(leaf).tolist()
               for path, leaf in jax.tree_util.tree_flatten_with_path(hp)[0]}
-    cfg = module_config(spec, static)
+    cfg = module_config(spec, static) if config is None else config
     return {"spec": spec.to_json(), "group": group, "static": static,
             "points": [points[i] for i in idx],
             "config": json.loads(json.dumps(dataclasses.asdict(cfg), default=repr)),
@@ -144,27 +125,12 @@ def identity(spec: SweepSpec, group: int, run_keys: np.ndarray) -> dict:
 
 
 def _checkpointer(spec: SweepSpec, group: int, run_keys: np.ndarray, out: pathlib.Path,
-                  read_only: bool = False) -> Checkpointer:
+                  read_only: bool = False, config: Any = None) -> Checkpointer:
     # a reader takes the arrays as they were trained, by whatever code; a resumed run must
     # continue with the code and libraries it began with
     return Checkpointer(out / "checkpoints" / f"group{group}", f"sweep-{spec.module}",
-                        identity(spec, group, run_keys), read_only=read_only,
+                        identity(spec, group, run_keys, config), read_only=read_only,
                         ignore=("code", "libraries") if read_only else ())
-
-
-
-
-def restore_to_resume(ck: Checkpointer, like: Any) -> tuple[int, Any] | None:
-    """The newest intact step of a group (a damaged newer one is set aside, said on stderr),
-    or None when the group has no step yet."""
-    found = ck.restore_latest(like, fallback=True)
-    if found is not None:
-        for where in ck.set_aside_after(found[0]):
-            print(f"warning: resuming from step {found[0]}; the damaged step was moved to "
-                  f"{where}", file=sys.stderr, flush=True)
-    return found
-
-
 
 
 def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
@@ -198,8 +164,8 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
             raise CheckpointError(f"{where}: no checkpoint; run the sweep first")
         rows = _group_rows(spec, g)
         keys = jax.random.wrap_key_data(jnp.asarray(run_keys[rows]))
-        _, pad = _batch_sharding(len(rows))
-        keys = _pad(keys, pad)
+        _, pad = batch_sharding(len(rows))
+        keys = pad_rows(keys, pad)
         cfg = module_config(spec, static)
         with _checkpointer(spec, g, run_keys, folder, read_only=True) as ck:
             latest = ck.restore_latest(found_adapter.saved_like(cfg, keys,
@@ -212,18 +178,6 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
             found[p] = (step, jax.tree.map(lambda x, t=take: x[t], saved["agents"]),
                         found_adapter.hyper([spec.points()[p]] * spec.seeds))
     return [found[p] for p in range(n_pts)]
-
-
-def chunk_stops(episodes: int, chunk: int) -> list[int]:
-    """Chunk ends: equal chunks of the largest divisor of ``episodes`` that is <= ``chunk``
-    (one compiled shape), unless that divisor is under half of ``chunk`` -- then chunks of
-    ``chunk`` and a shorter last one (a second compile)."""
-    size = max(d for d in range(1, min(chunk, episodes) + 1) if episodes % d == 0)
-    if size < min(chunk, episodes) / 2:
-        size = chunk
-    return list(range(size, episodes, size)) + [episodes]
-
-
 
 
 def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: bool = False,
@@ -284,6 +238,10 @@ def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: 
                 key: jax.Array | None) -> dict:
     if overwrite and (folder / "checkpoints").exists():
         shutil.rmtree(folder / "checkpoints")
+    if overwrite and (folder / "study.db").exists():
+        (folder / "study.db").unlink()
+    if spec.search != "grid":
+        return _run_search(spec, folder, resume, executor, ray_address, show_progress, key)
     n_pts = len(spec.points())
     run_keys = split_run_keys(spec, key)  # the one split
     groups = spec.groups()
@@ -304,12 +262,24 @@ def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: 
         else:
             results = [run_group(spec, g, run_keys, folder, resume, bar.update)
                        for g in range(len(groups))]
-    metrics, finite = _assemble(results, n_pts * spec.seeds)
-    summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
-               "groups": [{"static": s, "points": idx} for s, idx in groups],
-               "executor": executor, "devices": jax.local_device_count(),
-               "wall_s": time.perf_counter() - t0,
-               "diverged_runs": int((~finite).sum()), **summaries(spec, metrics, finite)}
+        metrics, finite = assemble(results, n_pts * spec.seeds)
+        summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
+                   "groups": [{"static": s, "points": idx} for s, idx in groups],
+                   "executor": executor, "devices": jax.local_device_count(),
+                   "wall_s": time.perf_counter() - t0,
+                   "diverged_runs": int((~finite).sum()), **summaries(spec, metrics, finite)}
+        if spec.holdout_seeds and summary["best"] is not None:
+            from grounding_jax.sweep import search
+
+            t1 = time.perf_counter()
+            # the held-out key: the run key folded with a constant, a stream its split into
+            # runs never gives
+            k = jax.random.key(spec.seed) if key is None else key
+            summary["heldout"] = search.heldout(
+                spec, spec.base() | summary["best"], folder, resume,
+                jax.random.fold_in(k, HOLDOUT_STREAM),
+                _executor(executor, ray_address, bar, None))
+            summary["heldout"]["wall_s"] = time.perf_counter() - t1
     try:
         with Staged(folder).writing() as staged:
             staged.write_text("runs.csv", csv_text(spec, summary))
@@ -322,28 +292,58 @@ def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: 
     return summary
 
 
-def _assemble(results: list[dict], n_rows: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """The groups' metrics in one array per metric (row ``point * seeds + seed``). Groups of
-    other run lengths (a grid over a static length field) give curves of other lengths: the
-    shorter ones are padded with NaN."""
-    metrics = {}
-    for k in results[0]["metrics"]:
-        parts = [np.asarray(r["metrics"][k]) for r in results]
-        shape = tuple(max(d) for d in zip(*(a.shape[1:] for a in parts), strict=True))
-        ragged = any(a.shape[1:] != shape for a in parts)
-        dtype = np.result_type(parts[0].dtype, np.float32) if ragged else parts[0].dtype
-        arr = np.full((n_rows, *shape), np.nan, dtype) if ragged else np.zeros(
-            (n_rows, *shape), dtype)
-        for r, a in zip(results, parts, strict=True):
-            arr[(r["rows"], *(slice(0, d) for d in a.shape[1:]))] = a
-        metrics[k] = arr
-    finite = np.zeros(n_rows, bool)
-    for r in results:
-        finite[r["rows"]] = r["finite"]
-    return metrics, finite
+def _executor(executor: str, ray_address: str | None, bar, config: Any) -> Callable:
+    """``execute(spec, run_keys, out, resume) -> group results``: every static group of a
+    grid spec trained here or as Ray tasks, with the static ``config`` if given."""
+    def execute(spec: SweepSpec, run_keys: np.ndarray, out: pathlib.Path, resume: bool):
+        groups = spec.groups()
+        if executor == "ray":
+            return _run_ray(spec, groups, run_keys, out, resume, ray_address, bar,
+                            adapter(spec.module).length, config)
+        return [run_group(spec, g, run_keys, out, resume, bar.update, config)
+                for g in range(len(groups))]
+
+    return execute
 
 
-def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> list[dict]:
+def _run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, executor: str,
+                ray_address: str | None, show_progress: bool, key: jax.Array | None) -> dict:
+    from tqdm.auto import tqdm
+
+    from grounding_jax.sweep import search
+    from grounding_jax.sweep.summary import search_csv, write_search_figure
+
+    if resume and not (folder / "checkpoints").is_dir():
+        print(f"note: nothing to resume in {folder} (no checkpoint was completed); "
+              "starting from the beginning", file=sys.stderr, flush=True)
+    found = adapter(spec.module)
+    config = module_config(spec, spec.groups()[0][0])  # holds every point of the space
+    length = found.length(spec.base())
+    total = (spec.trials + spec.holdout_seeds // max(spec.seeds, 1)) * spec.seeds * length
+    t0 = time.perf_counter()
+    with tqdm(total=total, unit=found.unit.rstrip("s"), desc=f"{spec.name} ({spec.search})",
+              disable=not show_progress, dynamic_ncols=True, smoothing=0.1) as bar:
+        found_search = search.run_search(spec, folder, resume, key,
+                                         _executor(executor, ray_address, bar, config), bar)
+    summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
+               "search": spec.search, "executor": executor,
+               "devices": jax.local_device_count(), "wall_s": time.perf_counter() - t0,
+               "metric": spec.metric, "lower_is_better": spec.metric in found.lower_is_better,
+               "diverged_trials": sum(t["diverged"] for t in found_search["trials"]),
+               **found_search}
+    try:
+        with Staged(folder).writing() as staged:
+            staged.write_text("runs.csv", search_csv(spec, summary))
+            write_search_figure(spec, summary, folder, staged)
+            staged.write_text("sweep.json", json.dumps(summary, indent=1) + "\n")
+    except OSError as e:
+        raise SweepError(f"out: cannot write the results in {folder} ({e.strerror or e}); "
+                         "the earlier results there and the checkpoints are kept") from None
+    return summary
+
+
+def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run, config=None
+             ) -> list[dict]:
     try:
         import ray
     except ImportError:
@@ -351,7 +351,7 @@ def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> l
     if not ray.is_initialized():
         ray.init(address=address)
     task = ray.remote(_ray_task)
-    pending = {task.remote(spec, g, run_keys, str(folder), resume): g
+    pending = {task.remote(spec, g, run_keys, str(folder), resume, config): g
                for g in range(len(groups))}
     results = []
     while pending:
@@ -364,9 +364,10 @@ def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run) -> l
 
 
 def _ray_task(spec: SweepSpec, group: int, run_keys: np.ndarray, folder: str,
-              resume: bool) -> dict:
+              resume: bool, config: Any = None) -> dict:
     """A Ray worker's share: one static group (checkpoints in the shared output folder)."""
     from grounding_jax.core.jaxcache import enable_compilation_cache
 
     enable_compilation_cache()  # the worker is a process of ours, as the CLI is
-    return jax.device_get(run_group(spec, group, run_keys, pathlib.Path(folder), resume))
+    return jax.device_get(run_group(spec, group, run_keys, pathlib.Path(folder), resume,
+                                    config=config))

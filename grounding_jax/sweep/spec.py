@@ -107,6 +107,8 @@ class Adapter:
         saved_like: ``saved_like(config, keys, n_evals) -> the structure of a group's
             checkpoint`` with an ``"agents"`` entry, for :func:`~grounding_jax.sweep.runner.
             trained_agents`; None: its agents cannot be read back.
+        pieces: ``pieces(config) -> Pieces`` for one group's static config, or None: the
+            module trains in one piece (grid, random and Optuna searches only).
     """
 
     fields: dict[str, Field]
@@ -121,6 +123,28 @@ class Adapter:
     success: tuple[str, ...] = ()
     lower_is_better: frozenset[str] = frozenset()
     saved_like: Callable[..., Any] | None = None
+    pieces: Callable[[Any], Pieces] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Pieces:
+    """How a module trains a batch of runs piece by piece, which ASHA and PBT need: runs
+    start, stop, take new hyperparameters and copy each other's agents at chunk ends.
+
+    Attributes:
+        start: ``start(keys, hp) -> state``: fresh runs, one per key (a pytree whose leaves
+            have a leading run axis; its ``"agent"`` entry is what PBT copies from run to run,
+            the rest -- each run's own random stream and counters -- stays with the run).
+        advance: ``advance(state, hp, units) -> (state, metrics)``: every run trains ``units``
+            more episodes (epochs) with its own hyperparameters ``hp`` (batched like
+            ``Adapter.hyper``'s); ``metrics`` are per-unit curves ``{name: [runs, units]}``.
+        rates: ``rates(state, hp) -> {name: [runs]}``: the success rates of ``Adapter.success``
+            (None: the module has none).
+    """
+
+    start: Callable[..., Any]
+    advance: Callable[..., tuple]
+    rates: Callable[..., dict] | None = None
 
 
 #: the entry point group where packages name their adapters (``name = "module:ADAPTER"``)
@@ -182,9 +206,21 @@ FIELDS: Mapping[str, dict[str, Field]] = _View("fields")
 METRICS: Mapping[str, dict[str, str]] = _View("metrics")
 TOP_KEYS = {"name": str, "module": str, "figure": str, "title": str, "description": str,
             "seeds": int, "metric": str, "x": str, "chunk": int, "seed": int, "paper": str,
-            "params": dict, "grid": dict, "eval_at": list, "design": str}
+            "params": dict, "grid": dict, "eval_at": list, "design": str,
+            "search": str, "trials": int, "holdout_seeds": int, "space": dict,
+            "asha": dict, "pbt": dict, "optuna": dict}
 #: how a grid becomes points: every combination, or one field at a time around a base point
+#: ("list": the grid's columns zipped, point i taking the i-th value of each -- how a search
+#: hands its drawn points to the runner)
 DESIGNS = ("product", "axes")
+#: how points are chosen: a grid, or a search over ``[space]``
+SEARCHES = ("grid", "random", "optuna", "asha", "pbt")
+#: the keys of each strategy's own table, with their types
+SECTION_KEYS = {"asha": {"eta": int, "rungs": list, "batch": int},
+                "pbt": {"interval": int, "fraction": float, "resample": float},
+                "optuna": {"sampler": str, "batch": int}}
+#: Optuna samplers by name
+SAMPLERS = ("tpe", "cmaes", "gp")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,6 +243,17 @@ class SweepSpec:
     paper: str = ""
     eval_at: tuple[int, ...] = ()
     design: str = "product"
+    search: str = "grid"
+    trials: int = 0
+    holdout_seeds: int = 0
+    space: dict[str, Any] = dataclasses.field(default_factory=dict)  # name -> space.Dim
+    asha: dict[str, Any] = dataclasses.field(default_factory=dict)
+    pbt: dict[str, Any] = dataclasses.field(default_factory=dict)
+    optuna: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def base(self) -> dict[str, Any]:
+        """Every field of the module at its default, with ``[params]`` applied."""
+        return {k: f.default for k, f in FIELDS[self.module].items()} | self.params
 
     def evaluations(self) -> tuple[int, ...]:
         """Episode counts at which AL success rates are measured: ``eval_at`` plus the end,
@@ -219,9 +266,19 @@ class SweepSpec:
     def points(self) -> list[dict[str, Any]]:
         """The grid's points, as full assignments of the module's fields: every combination
         (``design = "product"``), or (``"axes"``) the base point -- each grid field at its
-        first value -- then each field's other values, one field changed at a time."""
-        base = {k: f.default for k, f in FIELDS[self.module].items()} | self.params
+        first value -- then each field's other values, one field changed at a time; the
+        grid's columns zipped (``"list"``). A search's spec (``search`` other than grid) gives
+        the points that bound its space (the module config built for them holds any point
+        the search may draw)."""
+        base = self.base()
+        if self.search != "grid":
+            from grounding_jax.sweep.space import bounds
+
+            return [base | b for b in bounds(self.space)]
         keys = list(self.grid)
+        if self.design == "list":
+            return [base | {k: self.grid[k][i] for k in keys}
+                    for i in range(len(self.grid[keys[0]]))]
         if self.design == "axes":
             centre = base | {k: self.grid[k][0] for k in keys}
             return [centre] + [centre | {k: v} for k in keys for v in self.grid[k][1:]]
@@ -239,9 +296,14 @@ class SweepSpec:
         return [({k: pts[idx[0]][k] for k in static}, idx) for idx in out.values()]
 
     def to_json(self) -> dict:
-        """The spec as parse_spec accepts it back (tuples as lists)."""
-        return {f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
-                for f in dataclasses.fields(self) if f.name != "source"}
+        """The spec as parse_spec accepts it back (tuples as lists; a grid's spec without
+        the search keys it does not use, as before there were searches)."""
+        out = {f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v
+               for f in dataclasses.fields(self) if f.name != "source"}
+        out["space"] = {n: d.to_json() for n, d in self.space.items()}
+        unused = (("search", "grid"), ("trials", 0), ("holdout_seeds", 0), ("space", {}),
+                  ("asha", {}), ("pbt", {}), ("optuna", {}))
+        return {k: v for k, v in out.items() if (k, v) not in unused}
 
 
 def _err(source: str, key: str, msg: str) -> SweepError:
@@ -291,7 +353,15 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
     adapter_ = adapter(module)
     fields = FIELDS[module]
     params, grid = dict(data.get("params", {})), dict(data.get("grid", {}))
-    if not grid:
+    search = data.get("search", "grid")
+    if search not in SEARCHES:
+        raise _err(source, "search", f"unknown strategy {search!r}; accepted values: "
+                                     f"{SEARCHES}")
+    if search != "grid" and grid:
+        raise _err(source, f"grid.{next(iter(grid))}", f"search = {search!r} draws its points "
+                   "from [space]: give this field a range or choices there (or set search = "
+                   "\"grid\")")
+    if not grid and search == "grid":
         raise _err(source, "grid", "empty: give at least one field with a list of values")
     for section, table in (("params", params), ("grid", grid)):
         for k in table:
@@ -318,9 +388,12 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
     if metric not in METRICS[module]:
         raise _err(source, "metric", f"unknown metric {metric!r} for module {module!r}; "
                                      f"accepted values: {tuple(METRICS[module])}")
-    x = data.get("x", next(iter(grid)))
-    if x not in grid:
-        raise _err(source, "x", f"{x!r} is not a grid field; grid fields: {list(grid)}")
+    found = _parse_search(source, data, module, params, search)
+    swept = grid if search == "grid" else found["space"]
+    x = data.get("x", next(iter(swept)))
+    if x not in swept:
+        where = "grid" if search == "grid" else "space"
+        raise _err(source, "x", f"{x!r} is not a {where} field; {where} fields: {list(swept)}")
     design = data.get("design", "product")
     if design not in DESIGNS:
         raise _err(source, "design", f"unknown value {design!r}; accepted values: {DESIGNS}")
@@ -335,7 +408,9 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
                      chunk=chunk, seed=data.get("seed", 0), params=params, grid=grid,
                      source=source, description=data.get("description", ""),
                      paper=data.get("paper", ""), eval_at=tuple(sorted(set(eval_at))),
-                     design=design)
+                     design=design, search=search, **found)
+    if search != "grid":
+        _check_schedule(spec)
     if adapter_.evaluates and (eval_at or metric.startswith("success_")):
         lengths = {adapter_.length(p) for p in spec.points()}
         if len(lengths) > 1:
@@ -350,6 +425,155 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
         except ValueError as e:
             raise SweepError(f"{source}: {e}") from None
     return spec
+
+
+def _parse_search(source: str, data: dict, module: str, params: dict, search: str) -> dict:
+    """The search keys of a sweep (``trials``, ``holdout_seeds``, ``[space]`` and the
+    strategy's own table), checked; SweepError names the bad key."""
+    from grounding_jax.sweep.space import parse_dim
+
+    holdout = data.get("holdout_seeds", 0)
+    if holdout < 0:
+        raise _err(source, "holdout_seeds", f"must be an integer >= 0, got {holdout!r}")
+    out: dict[str, Any] = {"holdout_seeds": holdout}
+    given = [k for k in ("trials", "space", *SECTION_KEYS) if k in data]
+    if search == "grid":
+        if given:
+            raise _err(source, given[0], f"only for a search (search = one of "
+                                         f"{SEARCHES[1:]}); a grid sweeps [grid]")
+        return out
+    for section in SECTION_KEYS:
+        if section in data and section != search:
+            raise _err(source, section, f"[{section}] is for search = {section!r}, not "
+                                        f"{search!r}")
+    trials = data.get("trials", 16)
+    if trials < 1:
+        raise _err(source, "trials", f"must be an integer >= 1, got {trials!r}")
+    fields = FIELDS[module]
+    table = data.get("space", {})
+    if not table:
+        raise _err(source, "space", f"empty: search = {search!r} needs at least one field "
+                                    "with a range or choices")
+    space = {}
+    for name, entry in table.items():
+        if name not in fields:
+            raise _err(source, f"space.{name}", f"unknown field for module {module!r}; "
+                                                f"accepted fields: {sorted(fields)}")
+        if fields[name].kind != "traced":
+            traced = sorted(k for k, f in fields.items() if f.kind == "traced")
+            raise _err(source, f"space.{name}", "a static field (it changes the compiled "
+                       "program, so it cannot vary inside one batch, nor be perturbed there); "
+                       f"set it in [params] or sweep it with a grid; searchable (traced) "
+                       f"fields: {traced}")
+        if name in params:
+            raise _err(source, f"space.{name}", "also set in [params]; set it in one place")
+        space[name] = parse_dim(name, entry, fields[name].type,
+                                lambda key, v: _check_value(source, module, key, v),
+                                lambda key, msg: _err(source, key, msg))
+    opts = dict(data.get(search, {})) if search in SECTION_KEYS else {}
+    for k, v in opts.items():
+        want = SECTION_KEYS[search].get(k)
+        if want is None:
+            raise _err(source, f"{search}.{k}", f"unknown key; accepted keys: "
+                                                f"{sorted(SECTION_KEYS[search])}")
+        ok = (isinstance(v, (int, float)) and not isinstance(v, bool) if want is float else
+              isinstance(v, want) and not (want is int and isinstance(v, bool)))
+        if not ok:
+            raise _err(source, f"{search}.{k}", f"expected {want.__name__}, got {v!r}")
+    if search == "asha":
+        opts.setdefault("eta", 3)
+        if opts["eta"] < 2:
+            raise _err(source, "asha.eta", f"must be an integer >= 2 (the share 1/eta of the "
+                                           f"runs at a rung that go on), got {opts['eta']!r}")
+        opts.setdefault("batch", max(1, math.ceil(trials / opts["eta"])))
+        if opts["batch"] < 1:
+            raise _err(source, "asha.batch", f"must be an integer >= 1, got {opts['batch']!r}")
+    elif search == "pbt":
+        opts.setdefault("fraction", 0.25)
+        opts.setdefault("resample", 0.25)
+        if not 0 < opts["fraction"] <= 0.5:
+            raise _err(source, "pbt.fraction", f"must be in (0, 0.5] (the bottom and the top "
+                                               f"share), got {opts['fraction']!r}")
+        if not 0 <= opts["resample"] <= 1:
+            raise _err(source, "pbt.resample", f"must be in [0, 1], got {opts['resample']!r}")
+        if trials < 2:
+            raise _err(source, "trials", f"PBT needs a population of at least 2, got {trials}")
+    elif search == "optuna":
+        opts.setdefault("sampler", "tpe")
+        opts.setdefault("batch", 8)
+        if opts["sampler"] not in SAMPLERS:
+            raise _err(source, "optuna.sampler", f"unknown sampler {opts['sampler']!r}; "
+                                                 f"accepted values: {SAMPLERS}")
+        if opts["batch"] < 1:
+            raise _err(source, "optuna.batch", f"must be an integer >= 1, got "
+                                               f"{opts['batch']!r}")
+        _check_optuna(source, opts["sampler"])
+    if search in ("asha", "pbt") and adapter(module).pieces is None:
+        raise _err(source, "search", f"{search!r} trains runs piece by piece and moves them "
+                   f"inside the batch; module {module!r} trains in one piece: use one of "
+                   "('grid', 'random', 'optuna')")
+    out |= {"trials": trials, "space": space}
+    if search in SECTION_KEYS:
+        out[search] = opts
+    return out
+
+
+def _check_optuna(source: str, sampler: str) -> None:
+    """Optuna (and, for its sampler, cmaes or torch) can be imported, before anything runs."""
+    needs = {"tpe": [], "cmaes": ["cmaes"], "gp": ["torch", "scipy"]}[sampler]
+    import importlib.util
+
+    for name in ["optuna", *needs]:
+        if importlib.util.find_spec(name) is None:
+            raise _err(source, "optuna.sampler" if name != "optuna" else "search",
+                       f"{sampler!r} needs the package {name!r}: pip install {name}")
+
+
+def _check_schedule(spec: SweepSpec) -> None:
+    """ASHA's rungs and PBT's interval against the run's length and ``chunk``."""
+    source, found = spec.source, adapter(spec.module)
+    length = found.length(spec.base())
+    chunks = length // spec.chunk
+    if spec.search == "asha":
+        rungs = spec.asha.get("rungs")
+        if rungs is None:  # every eta-th of the length, on chunk ends
+            rungs, r = [length], length
+            while (r := r / spec.asha["eta"]) >= spec.chunk:
+                rungs.insert(0, max(spec.chunk, round(r / spec.chunk) * spec.chunk))
+            rungs = sorted(set(rungs))
+            spec.asha["rungs"] = rungs
+        if len(rungs) > max(chunks, 1):
+            raise _err(source, "asha.rungs", f"{len(rungs)} rungs but the run has only "
+                       f"{chunks} chunks ({length} {found.unit} / chunk {spec.chunk}); a rung "
+                       "is ranked at a chunk's end: fewer rungs or a smaller chunk")
+        if not all(isinstance(r, int) and not isinstance(r, bool) for r in rungs) \
+                or sorted(set(rungs)) != rungs or not rungs:
+            raise _err(source, "asha.rungs", f"must be increasing {found.unit} counts, got "
+                                             f"{rungs!r}")
+        bad = [r for r in rungs if r % spec.chunk or r < 1]
+        if bad:
+            raise _err(source, "asha.rungs", f"{bad[0]} is not a multiple of chunk "
+                       f"{spec.chunk} (runs are ranked at chunk ends)")
+        if rungs[-1] != length:
+            raise _err(source, "asha.rungs", f"the last rung must be the run's length "
+                       f"({length} {found.unit}), got {rungs[-1]}: the runs that pass every "
+                       "rung train to the end")
+    if spec.search == "pbt":
+        spec.pbt.setdefault("interval", max(spec.chunk, (length // 8) // spec.chunk
+                                            * spec.chunk))
+        interval = spec.pbt["interval"]
+        if interval < 1 or interval % spec.chunk:
+            raise _err(source, "pbt.interval", f"must be a multiple of chunk {spec.chunk} "
+                       f"(members are ranked at chunk ends), got {interval!r}")
+        if interval >= length:
+            raise _err(source, "pbt.interval", f"must be shorter than the run ({length} "
+                       f"{found.unit}), got {interval}")
+        if length % spec.chunk:
+            raise _err(source, "chunk", f"PBT needs chunks that divide the run ({length} "
+                                        f"{found.unit}), got {spec.chunk}")
+    if spec.search == "asha" and length % spec.chunk:
+        raise _err(source, "chunk", f"ASHA needs chunks that divide the run ({length} "
+                                    f"{found.unit}), got {spec.chunk}")
 
 
 def _parse_value(text: str) -> Any:
@@ -376,9 +600,14 @@ def apply_overrides(data: dict, overrides: Sequence[str], source: str) -> dict:
         if not sep or not key:
             raise _err(source, f"--set {item!r}", "expected KEY=VALUE")
         value = _parse_value(text)
-        if key in data["grid"]:
+        section, dot, sub = key.partition(".")
+        if dot and section in ("space", *SECTION_KEYS) and sub:
+            if not isinstance(data.get(section, {}), dict):
+                raise _err(source, section, f"must be a table, got {data[section]!r}")
+            data[section] = {**data.get(section, {}), sub: value}
+        elif key in data["grid"]:
             data["grid"][key] = value if isinstance(value, list) else [value]
-        elif key in TOP_KEYS and key not in ("params", "grid"):
+        elif key in TOP_KEYS and key not in ("params", "grid", "space", *SECTION_KEYS):
             data[key] = value
         elif isinstance(value, list):
             data["params"].pop(key, None)

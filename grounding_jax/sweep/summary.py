@@ -156,3 +156,85 @@ def write_sweep_figure(spec: SweepSpec, summary: dict, out: pathlib.Path, staged
     fig.tight_layout()
     write_figure(out, spec.figure, {k: v for k, v in summary.items() if k != "curves"}, fig,
                  staged)
+
+
+def search_csv(spec: SweepSpec, summary: dict) -> str:
+    """``runs.csv`` of a search: one row per trial (its searched fields, the units and RL
+    steps it spent, its status and why, its final value, then its value at every evaluation
+    as ``<metric>@<units>``)."""
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    trials = summary["trials"]
+    at = sorted({e for t in trials for e, _ in t["evaluations"]})
+    unit = adapter(spec.module).unit
+    w.writerow(["trial", *spec.space, unit, "rl_steps", "status", "reason", spec.metric,
+                "diverged", *(f"{spec.metric}@{e}" for e in at)])
+    for t in trials:
+        seen = dict((e, v) for e, v in t["evaluations"])
+        value = t["evaluations"][-1][1] if t["evaluations"] and not t["diverged"] else None
+        w.writerow([t["index"], *(t["params"][k] for k in spec.space), t["units"],
+                    t["rl_steps"], t["status"], t["reason"], "" if value is None else value,
+                    int(t["diverged"]), *("" if seen.get(e) is None else seen[e] for e in at)])
+    return buf.getvalue()
+
+
+def write_search_figure(spec: SweepSpec, summary: dict, out: pathlib.Path,
+                        staged: Staged) -> None:
+    """Stage a search's figure: the metric against the RL steps each trial had spent at each
+    evaluation (the best trial marked), the searched fields as parallel coordinates coloured
+    by each trial's final value, and for PBT the best lineage's schedule."""
+    from grounding_jax.sweep.space import normalised
+
+    plt = pyplot()
+    trials = summary["trials"]
+    best = summary.get("best")
+    pbt = spec.search == "pbt" and best is not None
+    fig, axes = plt.subplots(1, 3 if pbt else 2, figsize=(16.5 if pbt else 11, 4))
+    ax = axes[0]
+    for t in trials:
+        if not t["evaluations"] or not t["units"]:
+            continue
+        units = np.asarray([e for e, _ in t["evaluations"]], float)
+        steps = units / t["units"] * t["rl_steps"]  # at a steady rate
+        vals = [np.nan if v is None else v for _, v in t["evaluations"]]
+        mine = best is not None and t["index"] == best["index"]
+        ax.plot(steps, vals, "-o" if mine else "-", ms=4, lw=2.2 if mine else 0.8,
+                color="crimson" if mine else "0.55", alpha=1 if mine else 0.6, zorder=3 if mine
+                else 1, label=f"best: trial {t['index']}" if mine else None)
+    ax.set(xlabel="RL steps spent by the trial", ylabel=spec.metric,
+           title=f"{spec.search}: every trial's {spec.metric}")
+    if best is not None:
+        ax.legend(fontsize=8)
+    ax = axes[1]
+    names = list(spec.space)
+    finals = [t["evaluations"][-1][1] if t["evaluations"] and not t["diverged"] else None
+              for t in trials]
+    ok = [v for v in finals if v is not None]
+    cmap = plt.get_cmap("viridis" if spec.metric not in adapter(spec.module).lower_is_better
+                        else "viridis_r")
+    lo, hi = (min(ok), max(ok)) if ok else (0.0, 1.0)
+    for t, v in sorted(zip(trials, finals, strict=True),
+                       key=lambda tv: -np.inf if tv[1] is None else tv[1]):
+        if v is None or not t["units"]:
+            continue
+        ys = [normalised(spec.space[n], t["params"][n]) for n in names]
+        ax.plot(range(len(names)), ys, color=cmap((v - lo) / (hi - lo or 1)), alpha=0.8)
+    ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize=8)
+    ax.set(ylabel="place in its range (0 = low, 1 = high)",
+           title=f"searched fields, coloured by {spec.metric}")
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(lo, hi))
+    fig.colorbar(sm, ax=ax, label=spec.metric)
+    if pbt:
+        ax = axes[2]
+        sched = best["schedule"]
+        length = adapter(spec.module).length(spec.base())
+        for n in names:
+            xs = [u for u, _ in sched] + [length]
+            ys = [normalised(spec.space[n], p[n]) for _, p in sched]
+            ax.step(xs, ys + ys[-1:], where="post", label=n)
+        ax.set(xlabel=adapter(spec.module).unit, ylabel="place in its range",
+               title="the best lineage's schedule")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"{spec.title} ({spec.search}, {len(trials)} trials)")
+    fig.tight_layout()
+    write_figure(out, spec.figure, {k: v for k, v in summary.items()}, fig, staged)

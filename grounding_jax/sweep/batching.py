@@ -1,0 +1,79 @@
+"""What the sweep runner and the searches share: sharding a batch, padding it, finding its
+non-finite runs, chunk ends, resuming from a checkpoint and assembling the groups' results."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax.core.checkpoint import Checkpointer
+
+
+def batch_sharding(batch: int):
+    """(sharding of a leading batch axis over all local devices, padding rows needed)."""
+    devices = jax.local_devices()
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("batch",))
+    return (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch")),
+            (-batch) % len(devices))
+
+
+def pad_rows(tree, pad: int):
+    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[:1], pad, 0)])
+                        if pad and jnp.ndim(x) else x,
+                        tree)
+
+
+def finite_rows(tree, batch: int) -> np.ndarray:
+    """Per row: every float leaf of the tree finite."""
+    ok = np.ones(batch, bool)
+    for leaf in jax.tree.leaves(tree):
+        a = np.asarray(leaf)
+        if np.issubdtype(a.dtype, np.floating):
+            ok &= np.isfinite(a.reshape(batch, -1)).all(1)
+    return ok
+
+
+def restore_to_resume(ck: Checkpointer, like: Any) -> tuple[int, Any] | None:
+    """The newest intact step of a group (a damaged newer one is set aside, said on stderr),
+    or None when the group has no step yet."""
+    found = ck.restore_latest(like, fallback=True)
+    if found is not None:
+        for where in ck.set_aside_after(found[0]):
+            print(f"warning: resuming from step {found[0]}; the damaged step was moved to "
+                  f"{where}", file=sys.stderr, flush=True)
+    return found
+
+
+def chunk_stops(episodes: int, chunk: int) -> list[int]:
+    """Chunk ends: equal chunks of the largest divisor of ``episodes`` that is <= ``chunk``
+    (one compiled shape), unless that divisor is under half of ``chunk`` -- then chunks of
+    ``chunk`` and a shorter last one (a second compile)."""
+    size = max(d for d in range(1, min(chunk, episodes) + 1) if episodes % d == 0)
+    if size < min(chunk, episodes) / 2:
+        size = chunk
+    return list(range(size, episodes, size)) + [episodes]
+
+
+def assemble(results: list[dict], n_rows: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The groups' metrics in one array per metric (row ``point * seeds + seed``). Groups of
+    other run lengths (a grid over a static length field) give curves of other lengths: the
+    shorter ones are padded with NaN."""
+    metrics = {}
+    for k in results[0]["metrics"]:
+        parts = [np.asarray(r["metrics"][k]) for r in results]
+        shape = tuple(max(d) for d in zip(*(a.shape[1:] for a in parts), strict=True))
+        ragged = any(a.shape[1:] != shape for a in parts)
+        dtype = np.result_type(parts[0].dtype, np.float32) if ragged else parts[0].dtype
+        arr = np.full((n_rows, *shape), np.nan, dtype) if ragged else np.zeros(
+            (n_rows, *shape), dtype)
+        for r, a in zip(results, parts, strict=True):
+            arr[(r["rows"], *(slice(0, d) for d in a.shape[1:]))] = a
+        metrics[k] = arr
+    finite = np.zeros(n_rows, bool)
+    for r in results:
+        finite[r["rows"]] = r["finite"]
+    return metrics, finite
