@@ -25,6 +25,7 @@ TABLES = {
     "env_throughput": ("results/benchmarks/env_throughput.json", "env_throughput"),
     "al_throughput": ("results/benchmarks/al_throughput.json", "al_throughput"),
     "tl_throughput": ("results/benchmarks/tl_throughput.json", "tl_throughput"),
+    "search": ("results/benchmarks/search.json", "search"),
 }
 BLOCK = re.compile(r"(<!-- table: (\w+) -->\n).*?(<!-- end table -->)", re.S)
 

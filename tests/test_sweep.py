@@ -358,13 +358,21 @@ def test_ray_executor_on_a_local_cluster_matches_local(tmp_path):
     ray = pytest.importorskip("ray")
     spec = _spec(TINY_TL)
     sweep.run(spec, tmp_path / "local", show_progress=False)
+    # a search's batches go to Ray the same way (here: a random search of the TL)
+    searched = sweep.parse_spec({**TINY_TL, "grid": {}, "search": "random", "trials": 3,
+                                 "name": "search", "holdout_seeds": 2,
+                                 "space": {"lr": {"log": [0.05, 0.5]}}})
+    local = sweep.run(searched, tmp_path / "local", show_progress=False)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         s = sweep.run(spec, tmp_path / "ray", executor="ray", show_progress=False)
+        remote = sweep.run(searched, tmp_path / "ray", executor="ray", show_progress=False)
     finally:
         ray.shutdown()
-    assert s["executor"] == "ray"
+    assert s["executor"] == "ray" and remote["executor"] == "ray"
     _assert_same(_metrics(tmp_path / "local" / "sweep"), _metrics(tmp_path / "ray" / "sweep"))
+    assert remote["trials"] == local["trials"] and remote["best"] == local["best"]
+    assert remote["heldout"]["runs"] == local["heldout"]["runs"]
 
 
 # ------------------------------------------------------------------------------- checkpoints

@@ -63,6 +63,11 @@ def main(argv: list[str] | None = None) -> int:
             _guard.leave(_guard.exit_code(e))
         return _guard.exit_code(e)
     folder = pathlib.Path(args.out) / spec.name
+    if spec.search != "grid":
+        print(search_lines(spec, summary))
+        print(f"wrote {folder}/ (sweep.json, runs.csv, {spec.figure}.png) in "
+              f"{summary['wall_s']:.1f} s")
+        return 0
     for p in summary["points"]:
         mean = "diverged" if p["mean"] is None else f"{p['mean']:.4g} ± {p['std']:.2g}"
         flag = f"  ({len(p['diverged'])} diverged)" if p["diverged"] else ""
@@ -71,9 +76,37 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{p['point']}: success of the median run at episode "
               f"{summary['evaluations'][-1]}: " + ", ".join(
                   f"{k} {p['rates'][k]['median']:.2f}" for k in adapter(spec.module).success))
+    if "heldout" in summary:
+        print(heldout_line(summary["heldout"], spec.metric))
     print(f"wrote {folder}/ (sweep.json, runs.csv, {spec.figure}.png) in "
           f"{summary['wall_s']:.1f} s")
     return 0
+
+
+def heldout_line(h: dict, metric: str) -> str:
+    """The held-out check in one line."""
+    if h["mean"] is None:
+        return f"held-out check on {h['seeds']} fresh seeds: every run diverged"
+    return (f"held-out check on {h['seeds']} fresh seeds: {metric} {h['mean']:.4g} ± "
+            f"{h['std']:.2g}" + (f" ({len(h['diverged'])} diverged)" if h["diverged"] else ""))
+
+
+def search_lines(spec, summary: dict) -> str:
+    """A search's result: the best configuration, the budget spent, the held-out check."""
+    b, best = summary["budget"], summary["best"]
+    unit = adapter(spec.module).unit
+    lines = [f"{spec.search}: {b['trials_started']} trials started, {b[unit]} run-{unit} and "
+             f"{b['rl_steps']} RL steps spent ({summary['diverged_trials']} trials diverged)"]
+    if best is None:
+        return "\n".join(lines + ["every trial diverged: no best configuration"])
+    lines.append(f"best: trial {best['index']} {best['params']}: {spec.metric} "
+                 f"{best['evaluations'][-1][1]:.4g} on the searched seeds")
+    if spec.search == "pbt":
+        lines.append("its schedule: " + "; ".join(f"from {u}: {p}" for u, p in
+                                                   best["schedule"]))
+    if "heldout" in summary:
+        lines.append(heldout_line(summary["heldout"], spec.metric) + " (the number to report)")
+    return "\n".join(lines)
 
 
 def resume_command(argv: list[str] | None = None) -> str:

@@ -22,6 +22,8 @@ def batch_sharding(batch: int):
 
 
 def pad_rows(tree, pad: int):
+    """``tree`` with its first row repeated ``pad`` times at the end of every batched leaf
+    (so that the batch divides among the devices)."""
     return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[:1], pad, 0)])
                         if pad and jnp.ndim(x) else x,
                         tree)

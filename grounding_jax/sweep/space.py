@@ -79,12 +79,12 @@ def parse_dim(name: str, entry: Any, field_type: type, check: Callable[[str, Any
         raise err(key, f"{kind}: needs [low, high], got {value!r}")
     if kind == "int" and not all(isinstance(v, int) for v in value):
         raise err(key, f"int: needs two integers [low, high], got {value!r}")
-    low, high = (check(key, v) for v in value)
+    low, high = value
     if not low < high:
         raise err(key, f"{kind}: needs low < high, got [{low!r}, {high!r}]")
     if kind == "log" and low <= 0:
         raise err(key, f"log: needs low > 0 (a log range), got [{low!r}, {high!r}]")
-    return Dim(name, kind, low, high)
+    return Dim(name, kind, check(key, low), check(key, high))
 
 
 def sample(space: Mapping[str, Dim], rng: np.random.Generator) -> dict[str, Any]:

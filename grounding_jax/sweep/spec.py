@@ -442,10 +442,6 @@ def _parse_search(source: str, data: dict, module: str, params: dict, search: st
             raise _err(source, given[0], f"only for a search (search = one of "
                                          f"{SEARCHES[1:]}); a grid sweeps [grid]")
         return out
-    for section in SECTION_KEYS:
-        if section in data and section != search:
-            raise _err(source, section, f"[{section}] is for search = {section!r}, not "
-                                        f"{search!r}")
     trials = data.get("trials", 16)
     if trials < 1:
         raise _err(source, "trials", f"must be an integer >= 1, got {trials!r}")
@@ -470,17 +466,35 @@ def _parse_search(source: str, data: dict, module: str, params: dict, search: st
         space[name] = parse_dim(name, entry, fields[name].type,
                                 lambda key, v: _check_value(source, module, key, v),
                                 lambda key, msg: _err(source, key, msg))
-    opts = dict(data.get(search, {})) if search in SECTION_KEYS else {}
+    # a file may hold every strategy's table (each is checked); the search's own is used
+    tables = {k: _section(source, k, data.get(k, {}), trials, k == search)
+              for k in SECTION_KEYS if k in data or k == search}
+    if search in ("asha", "pbt") and adapter(module).pieces is None:
+        raise _err(source, "search", f"{search!r} trains runs piece by piece and moves them "
+                   f"inside the batch; module {module!r} trains in one piece: use one of "
+                   "('grid', 'random', 'optuna')")
+    out |= {"trials": trials, "space": space}
+    if search in SECTION_KEYS:
+        out[search] = tables[search]
+    return out
+
+
+def _section(source: str, name: str, table: Any, trials: int, active: bool) -> dict:
+    """One strategy's table, checked, with its defaults (``active``: the search's own)."""
+    if not isinstance(table, dict):
+        raise _err(source, name, f"must be a table ([{name}] with one key per line), got "
+                                 f"{table!r}")
+    opts = dict(table)
     for k, v in opts.items():
-        want = SECTION_KEYS[search].get(k)
+        want = SECTION_KEYS[name].get(k)
         if want is None:
-            raise _err(source, f"{search}.{k}", f"unknown key; accepted keys: "
-                                                f"{sorted(SECTION_KEYS[search])}")
+            raise _err(source, f"{name}.{k}", f"unknown key; accepted keys: "
+                                                f"{sorted(SECTION_KEYS[name])}")
         ok = (isinstance(v, (int, float)) and not isinstance(v, bool) if want is float else
               isinstance(v, want) and not (want is int and isinstance(v, bool)))
         if not ok:
-            raise _err(source, f"{search}.{k}", f"expected {want.__name__}, got {v!r}")
-    if search == "asha":
+            raise _err(source, f"{name}.{k}", f"expected {want.__name__}, got {v!r}")
+    if name == "asha":
         opts.setdefault("eta", 3)
         if opts["eta"] < 2:
             raise _err(source, "asha.eta", f"must be an integer >= 2 (the share 1/eta of the "
@@ -488,7 +502,7 @@ def _parse_search(source: str, data: dict, module: str, params: dict, search: st
         opts.setdefault("batch", max(1, math.ceil(trials / opts["eta"])))
         if opts["batch"] < 1:
             raise _err(source, "asha.batch", f"must be an integer >= 1, got {opts['batch']!r}")
-    elif search == "pbt":
+    elif name == "pbt":
         opts.setdefault("fraction", 0.25)
         opts.setdefault("resample", 0.25)
         if not 0 < opts["fraction"] <= 0.5:
@@ -496,9 +510,9 @@ def _parse_search(source: str, data: dict, module: str, params: dict, search: st
                                                f"share), got {opts['fraction']!r}")
         if not 0 <= opts["resample"] <= 1:
             raise _err(source, "pbt.resample", f"must be in [0, 1], got {opts['resample']!r}")
-        if trials < 2:
+        if active and trials < 2:
             raise _err(source, "trials", f"PBT needs a population of at least 2, got {trials}")
-    elif search == "optuna":
+    elif name == "optuna":
         opts.setdefault("sampler", "tpe")
         opts.setdefault("batch", 8)
         if opts["sampler"] not in SAMPLERS:
@@ -507,15 +521,9 @@ def _parse_search(source: str, data: dict, module: str, params: dict, search: st
         if opts["batch"] < 1:
             raise _err(source, "optuna.batch", f"must be an integer >= 1, got "
                                                f"{opts['batch']!r}")
-        _check_optuna(source, opts["sampler"])
-    if search in ("asha", "pbt") and adapter(module).pieces is None:
-        raise _err(source, "search", f"{search!r} trains runs piece by piece and moves them "
-                   f"inside the batch; module {module!r} trains in one piece: use one of "
-                   "('grid', 'random', 'optuna')")
-    out |= {"trials": trials, "space": space}
-    if search in SECTION_KEYS:
-        out[search] = opts
-    return out
+        if active:
+            _check_optuna(source, opts["sampler"])
+    return opts
 
 
 def _check_optuna(source: str, sampler: str) -> None:
