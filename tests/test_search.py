@@ -71,6 +71,8 @@ def searched(tmp_path_factory) -> tuple[pathlib.Path, dict[str, dict]]:
     ({"search": "asha", "asha": {"rungs": [3, 6]}}, "asha.rungs", "multiple of chunk"),
     ({"search": "asha", "asha": {"rungs": [2, 4]}}, "asha.rungs", "last rung"),
     ({"search": "asha", "asha": {"speed": 2}}, "asha.speed", "accepted keys"),
+    ({"search": "asha", "asha": {"rungs": [2, 6], "brackets": 3}}, "asha.brackets",
+     "one bracket per rung"),
     ({"search": "pbt", "pbt": {"interval": 3}}, "pbt.interval", "multiple of chunk"),
     ({"search": "pbt", "pbt": {"interval": 6}}, "pbt.interval", "shorter than the run"),
     ({"search": "pbt", "pbt": {"fraction": 0.7}}, "pbt.fraction", "(0, 0.5]"),
@@ -186,6 +188,19 @@ def test_asha_trains_what_a_grid_trains_and_stops_the_bottom_of_each_rung(search
                                    for i in stopped)
     assert max(first[i] for i in go_on if i >= 3) <= min(first[i] for i in stopped if i >= 3)
     assert asha["budget"]["rl_steps"] < rand["budget"]["rl_steps"]
+
+
+def test_asha_brackets_hedge_and_train_what_the_others_train(searched, tmp_path):
+    _, runs = searched
+    s = sweep.run(sweep.parse_spec(_search("asha", asha={"eta": 2, "rungs": [2, 6],
+                                                         "batch": 3, "brackets": 2})),
+                  tmp_path, show_progress=False)
+    first, second = s["trials"][0::2], s["trials"][1::2]
+    assert all(t["status"] == "completed" for t in second)  # first ranked at the end
+    assert sum(t["status"] == "stopped" for t in first) == 2  # 3 at rung 2: 1 goes on
+    for t, r in zip(s["trials"], runs["random"]["trials"], strict=True):
+        if t["status"] == "completed":
+            assert t["evaluations"][-1] == r["evaluations"][-1]
 
 
 def test_pbt_copies_the_top_into_the_bottom_and_records_the_schedule(searched):

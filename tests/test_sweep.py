@@ -155,8 +155,12 @@ def test_chunks_have_one_shape_when_possible():
 def test_every_sweep_file_validates(path):
     spec = sweep.load_spec(path)
     assert spec.seeds >= 5
-    assert spec.figure.startswith("fig") or spec.name in ("al_tuning", "free_al_tuning")
-    assert len(spec.points()) >= 5
+    assert spec.figure.startswith("fig") or spec.name in ("al_tuning", "free_al_tuning",
+                                                          "al_asha")
+    if spec.search == "grid":
+        assert len(spec.points()) >= 5
+    else:
+        assert spec.trials >= 5 and spec.holdout_seeds >= 5
 
 
 def test_the_free_tuning_sweep_starts_from_the_shipped_settings():
@@ -367,12 +371,19 @@ def test_ray_executor_on_a_local_cluster_matches_local(tmp_path):
     try:
         s = sweep.run(spec, tmp_path / "ray", executor="ray", show_progress=False)
         remote = sweep.run(searched, tmp_path / "ray", executor="ray", show_progress=False)
+        # ASHA's brackets are Ray tasks
+        brackets = _spec(TINY_AL, grid={}, search="asha", trials=4, name="asha",
+                         space={"critic_lr": {"log": [0.01, 0.3]}},
+                         asha={"eta": 2, "rungs": [2, 4], "brackets": 2})
+        by_ray = sweep.run(brackets, tmp_path / "ray", executor="ray", show_progress=False)
     finally:
         ray.shutdown()
     assert s["executor"] == "ray" and remote["executor"] == "ray"
     _assert_same(_metrics(tmp_path / "local" / "sweep"), _metrics(tmp_path / "ray" / "sweep"))
     assert remote["trials"] == local["trials"] and remote["best"] == local["best"]
     assert remote["heldout"]["runs"] == local["heldout"]["runs"]
+    here = sweep.run(brackets, tmp_path / "local", show_progress=False)
+    assert by_ray["trials"] == here["trials"] and by_ray["best"] == here["best"]
 
 
 # ------------------------------------------------------------------------------- checkpoints

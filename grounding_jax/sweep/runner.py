@@ -323,8 +323,18 @@ def _run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, executor: s
     t0 = time.perf_counter()
     with tqdm(total=total, unit=found.unit.rstrip("s"), desc=f"{spec.name} ({spec.search})",
               disable=not show_progress, dynamic_ncols=True, smoothing=0.1) as bar:
+        remote = None
+        if executor == "ray":
+            def remote(fn: Callable, calls: list[tuple]) -> list:
+                ray = _ray(ray_address)
+                task = ray.remote(fn)
+                out = ray.get([task.remote(*args) for args in calls])
+                bar.update(bar.total - bar.n)
+                return out
+
         found_search = search.run_search(spec, folder, resume, key,
-                                         _executor(executor, ray_address, bar, config), bar)
+                                         _executor(executor, ray_address, bar, config), bar,
+                                         remote)
     summary = {"name": spec.name, "source": spec.source, "spec": spec.to_json(),
                "search": spec.search, "executor": executor,
                "devices": jax.local_device_count(), "wall_s": time.perf_counter() - t0,
@@ -344,12 +354,7 @@ def _run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, executor: s
 
 def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run, config=None
              ) -> list[dict]:
-    try:
-        import ray
-    except ImportError:
-        raise SweepError("executor: 'ray' needs Ray: pip install 'grounding-jax[ray]'") from None
-    if not ray.is_initialized():
-        ray.init(address=address)
+    ray = _ray(address)
     task = ray.remote(_ray_task)
     pending = {task.remote(spec, g, run_keys, str(folder), resume, config): g
                for g in range(len(groups))}
@@ -361,6 +366,17 @@ def _run_ray(spec, groups, run_keys, folder, resume, address, bar, per_run, conf
         s, idx = groups[g]
         bar.update(len(idx) * spec.seeds * per_run(s))
     return results
+
+
+def _ray(address: str | None):
+    """Ray, connected (to ``address``, or the running cluster, else a local one)."""
+    try:
+        import ray
+    except ImportError:
+        raise SweepError("executor: 'ray' needs Ray: pip install 'grounding-jax[ray]'") from None
+    if not ray.is_initialized():
+        ray.init(address=address)
+    return ray
 
 
 def _ray_task(spec: SweepSpec, group: int, run_keys: np.ndarray, folder: str,

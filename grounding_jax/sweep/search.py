@@ -391,17 +391,24 @@ class _Saver:
 
 
 def run_asha(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
-             progress: Callable[[int], None]) -> list[Trial]:
+             progress: Callable[[int], None], bracket: int = 0) -> list[Trial]:
     """Asynchronous successive halving: ``batch`` slots train trials a chunk at a time; a
     trial reaching a rung pauses there, and a free slot takes the best paused trial that is
     in the top 1/eta of all the trials that reached its rung (the highest rung first), else
     the next new trial -- so the bottom 1 - 1/eta at each rung stop, the batch stays full and
-    nothing compiles again. A slot left with no work idles (its rows are not counted)."""
+    nothing compiles again. A slot left with no work idles (its rows are not counted).
+
+    With ``brackets`` > 1, bracket ``b`` (of trials ``b, b + brackets, ...``) is ranked first
+    at rung ``b``: the later brackets stop fewer trials early (Hyperband's hedge). Brackets
+    are independent (``--executor ray`` runs them side by side). Returns the bracket's
+    trials."""
     k_search, run_keys, _ = keys
     rng = _rng(k_search)
-    points = [sample(spec.space, rng) for _ in range(spec.trials)]
-    eta, rungs = spec.asha["eta"], list(spec.asha["rungs"])
-    n_slots = min(spec.asha["batch"], spec.trials)
+    points = [sample(spec.space, rng) for _ in range(spec.trials)]  # every bracket's alike
+    n_brackets = spec.asha.get("brackets", 1)
+    members = list(range(bracket, spec.trials, n_brackets))
+    eta, rungs = spec.asha["eta"], list(spec.asha["rungs"])[bracket:]
+    n_slots = min(spec.asha["batch"], len(members))
     b = _Batch(spec, n_slots, run_keys, points)
     trials = [Trial(i, points[i]) for i in range(spec.trials)]
     metric_curve = not spec.metric.startswith("success_")
@@ -409,11 +416,12 @@ def run_asha(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
     curves = np.zeros((spec.trials, spec.seeds, length if metric_curve else 1), np.float32)
     # host bookkeeping (all JSON): slots, queue, the values each rung has seen
     book = {"slot_trial": [-1] * n_slots, "next": 0, "arrived": [{} for _ in rungs],
-            "promoted": [[] for _ in rungs], "piece": 0}
+            "promoted": [[] for _ in rungs], "piece": 0, "members": members}
     host = b.fresh([0] * n_slots)
     bank = jax.tree.map(lambda x: np.zeros((spec.trials * spec.seeds, *x.shape[1:]), x.dtype),
                         host)
-    saver = _Saver(spec, folder, b.config, run_keys, resume)
+    saver = _Saver(spec, folder, b.config, run_keys, resume,
+                   "population" if n_brackets == 1 else f"bracket{bracket}")
     try:
         found = saver.restore({"state": host, "bank": bank, "curves": curves})
         if found is not None:
@@ -421,7 +429,7 @@ def run_asha(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
             host, bank, curves = arrays["state"], arrays["bank"], arrays["curves"]
             book = saved["book"]
             trials = [Trial(**t) for t in saved["trials"]]
-            progress(sum(t.units for t in trials) * spec.seeds)
+            progress(sum(trials[i].units for i in members) * spec.seeds)
         else:
             book, host = _asha_assign(spec, b, book, trials, host, bank, rungs, eta)
         while any(t >= 0 for t in book["slot_trial"]):
@@ -465,16 +473,27 @@ def run_asha(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
                        {"book": book, "trials": [_record(t) for t in trials]})
     finally:
         saver.close()
-    for t in trials:
+    for t in (trials[i] for i in members):
         if t.status == "paused":
             k = rungs.index(t.units)
             n = len(book["arrived"][k])
             t.status = "stopped"
-            t.reason = (f"rung {k} ({t.units} {adapter(spec.module).unit}): not in the top "
+            t.reason = (f"rung at {t.units} {adapter(spec.module).unit}: not in the top "
                         f"1/{eta} of the {n} trials that reached it")
         elif t.status == "queued":
             t.reason = "never started"
-    return trials
+    return [trials[i] for i in members]
+
+
+def asha_bracket(spec: SweepSpec, folder: str, resume: bool, key_data: np.ndarray,
+                 run_keys: np.ndarray, bracket: int) -> list[dict]:
+    """One ASHA bracket in a process of its own (a Ray task): its trials as records."""
+    from grounding_jax.core.jaxcache import enable_compilation_cache
+
+    enable_compilation_cache()
+    keys = (jax.random.wrap_key_data(jnp.asarray(key_data)), run_keys, None)
+    return [_record(t) for t in run_asha(spec, pathlib.Path(folder), resume, keys,
+                                         lambda n: None, bracket)]
 
 
 def _asha_assign(spec, b: _Batch, book: dict, trials: list[Trial], host: dict, bank: dict,
@@ -496,8 +515,8 @@ def _asha_assign(spec, b: _Batch, book: dict, trials: list[Trial], host: dict, b
                 pick = ("bank", ok[0])
                 book["promoted"][k].append(ok[0])
                 break
-        if pick is None and book["next"] < spec.trials:
-            pick = ("new", book["next"])
+        if pick is None and book["next"] < len(book["members"]):
+            pick = ("new", book["members"][book["next"]])
             book["next"] += 1
         if pick is None:
             continue
@@ -664,7 +683,7 @@ def heldout(spec: SweepSpec, params: dict[str, Any], folder: pathlib.Path, resum
 
 
 def run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, key: jax.Array | None,
-               execute: Callable, bar) -> dict:
+               execute: Callable, bar, remote: Callable | None = None) -> dict:
     """Run the search of ``spec`` and its held-out check; return the search's summary (the
     caller writes it).
 
@@ -672,6 +691,8 @@ def run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, key: jax.Arr
         execute: ``execute(derived_spec, run_keys, out, resume) -> group results`` trains a
             grid of points (locally or as Ray tasks).
         bar: a progress bar (its ``update`` takes units of runs trained).
+        remote: ``remote(fn, [args, ...]) -> [fn(*args), ...]`` run as parallel tasks (Ray),
+            for ASHA's brackets; None: one after another here.
     """
     keys = _keys(spec, key)
     t0 = time.perf_counter()
@@ -680,7 +701,16 @@ def run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, key: jax.Arr
     elif spec.search == "optuna":
         trials = run_optuna(spec, folder, resume, keys, execute)
     elif spec.search == "asha":
-        trials = run_asha(spec, folder, resume, keys, bar.update)
+        brackets = range(spec.asha.get("brackets", 1))
+        if remote is not None and len(brackets) > 1:
+            data = np.asarray(jax.random.key_data(keys[0]))
+            found = remote(asha_bracket, [(spec, str(folder), resume, data, keys[1], b)
+                                          for b in brackets])
+            trials = [Trial(**r) for part in found for r in part]
+        else:
+            trials = [t for b in brackets
+                      for t in run_asha(spec, folder, resume, keys, bar.update, b)]
+        trials.sort(key=lambda t: t.index)
     elif spec.search == "pbt":
         trials = run_pbt(spec, folder, resume, keys, bar.update)
     else:

@@ -216,7 +216,7 @@ DESIGNS = ("product", "axes")
 #: how points are chosen: a grid, or a search over ``[space]``
 SEARCHES = ("grid", "random", "optuna", "asha", "pbt")
 #: the keys of each strategy's own table, with their types
-SECTION_KEYS = {"asha": {"eta": int, "rungs": list, "batch": int},
+SECTION_KEYS = {"asha": {"eta": int, "rungs": list, "batch": int, "brackets": int},
                 "pbt": {"interval": int, "fraction": float, "resample": float},
                 "optuna": {"sampler": str, "batch": int}}
 #: Optuna samplers by name
@@ -500,6 +500,10 @@ def _section(source: str, name: str, table: Any, trials: int, active: bool) -> d
             raise _err(source, "asha.eta", f"must be an integer >= 2 (the share 1/eta of the "
                                            f"runs at a rung that go on), got {opts['eta']!r}")
         opts.setdefault("batch", max(1, math.ceil(trials / opts["eta"])))
+        opts.setdefault("brackets", 1)
+        if opts["brackets"] < 1 or (active and opts["brackets"] > trials):
+            raise _err(source, "asha.brackets", f"must be an integer in [1, trials = "
+                                                f"{trials}], got {opts['brackets']!r}")
         if opts["batch"] < 1:
             raise _err(source, "asha.batch", f"must be an integer >= 1, got {opts['batch']!r}")
     elif name == "pbt":
@@ -562,6 +566,10 @@ def _check_schedule(spec: SweepSpec) -> None:
         if bad:
             raise _err(source, "asha.rungs", f"{bad[0]} is not a multiple of chunk "
                        f"{spec.chunk} (runs are ranked at chunk ends)")
+        if spec.asha["brackets"] > len(rungs):
+            raise _err(source, "asha.brackets", f"{spec.asha['brackets']} brackets but "
+                       f"{len(rungs)} rungs: bracket b is first ranked at rung b, so at most "
+                       "one bracket per rung")
         if rungs[-1] != length:
             raise _err(source, "asha.rungs", f"the last rung must be the run's length "
                        f"({length} {found.unit}), got {rungs[-1]}: the runs that pass every "
