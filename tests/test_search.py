@@ -225,6 +225,19 @@ def test_optuna_keeps_its_study_in_sqlite(searched):
     assert values == sorted(t["evaluations"][-1][1] for t in runs["optuna"]["trials"])
 
 
+def test_optuna_takes_cma_es_and_a_changed_search_is_not_resumed(tmp_path):
+    pytest.importorskip("cmaes")
+    spec = sweep.parse_spec(_search("optuna", optuna={"sampler": "cmaes", "batch": 3},
+                                    space={"critic_lr": {"log": [0.01, 0.3]},
+                                           "sigma": {"uniform": [0.05, 0.3]}}))
+    s = sweep.run(spec, tmp_path, show_progress=False)
+    assert all(t["status"] == "completed" for t in s["trials"])
+    other = sweep.parse_spec({**spec.to_json(), "space": {
+        "critic_lr": {"log": [0.01, 0.1]}, "sigma": {"uniform": [0.05, 0.3]}}})
+    with pytest.raises(checkpoint.CheckpointError, match="another config.*space"):
+        sweep.run(other, tmp_path, resume=True, show_progress=False)
+
+
 def test_a_diverging_trial_is_flagged_and_ranked_last(tmp_path):
     data = _search("asha", space={"critic_lr": {"choice": [0.01, 1e9]},
                                   "sigma": {"uniform": [0.05, 0.3]}})

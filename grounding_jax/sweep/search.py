@@ -347,24 +347,33 @@ def _put_rows(host: dict, src: dict, rows: np.ndarray, src_rows: np.ndarray) -> 
     return jax.tree.map(put, host, src)
 
 
+def _identity(spec: SweepSpec, config: Any, run_keys: np.ndarray) -> dict:
+    """What a search's checkpoints belong to: the spec, the module config, the run keys, the
+    device count, the code and the libraries (a resumed search must match it exactly)."""
+    import hashlib
+
+    return {"spec": spec.to_json(), "config": json.loads(json.dumps(
+        dataclasses.asdict(config), default=repr)), "devices": jax.local_device_count(),
+        "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest(),
+        "code": code_fingerprint(), "libraries": library_versions()}
+
+
+def _guard(where: pathlib.Path, spec: SweepSpec, ident: dict) -> Checkpointer:
+    try:
+        return Checkpointer(where, f"search-{spec.module}", ident)
+    except CheckpointError as e:
+        raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
+                              "starts over") from None
+
+
 class _Saver:
     """The population's checkpoint: the runs' state, the paused trials' bank, the curves and
     the host's bookkeeping (JSON bytes), saved together at every piece's end."""
 
     def __init__(self, spec: SweepSpec, folder: pathlib.Path, config, run_keys: np.ndarray,
                  resume: bool, name: str = "population") -> None:
-        import hashlib
-
-        ident = {"spec": spec.to_json(), "config": json.loads(json.dumps(
-            dataclasses.asdict(config), default=repr)),
-            "devices": jax.local_device_count(),
-            "run_keys": hashlib.sha256(run_keys.tobytes()).hexdigest(),
-            "code": code_fingerprint(), "libraries": library_versions()}
-        try:
-            self.ck = Checkpointer(folder / "checkpoints" / name, f"search-{spec.module}", ident)
-        except CheckpointError as e:
-            raise CheckpointError(f"{e}; --overwrite deletes this sweep's checkpoints and "
-                                  "starts over") from None
+        self.ck = _guard(folder / "checkpoints" / name, spec, _identity(spec, config,
+                                                                           run_keys))
         if self.ck.latest_step() is not None and not resume:
             self.ck.close()
             raise CheckpointError(f"{self.ck.directory}: holds a checkpoint of an earlier run; "
@@ -695,6 +704,11 @@ def run_search(spec: SweepSpec, folder: pathlib.Path, resume: bool, key: jax.Arr
             for ASHA's brackets; None: one after another here.
     """
     keys = _keys(spec, key)
+    # the whole search's identity, before anything is read back (a study, a batch's trials)
+    config = module_config(spec, spec.groups()[0][0])
+    ident = _identity(spec, config, keys[1]) | {
+        "search_key": np.asarray(jax.random.key_data(keys[0])).tolist()}
+    _guard(folder / "checkpoints" / "search", spec, ident).close()
     t0 = time.perf_counter()
     if spec.search == "random":
         trials = run_random(spec, folder, resume, keys, execute)

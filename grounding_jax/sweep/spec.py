@@ -33,6 +33,20 @@ whose parameters or metrics are not finite are flagged ``diverged`` and left out
 
 Writes ``<out>/<name>/``: ``sweep.json`` (spec, per-point summaries, curves), ``runs.csv``
 (one row per run), ``<figure>.png`` / ``<figure>.json``, and ``checkpoints/``.
+
+Instead of a grid, ``search = "random" | "optuna" | "asha" | "pbt"`` searches a ``[space]``
+of ranges (:mod:`~grounding_jax.sweep.space`) with ``trials`` configurations, and
+``holdout_seeds`` retrains the winner on fresh seeds (:mod:`~grounding_jax.sweep.search`)::
+
+    search = "asha"
+    trials = 27
+    holdout_seeds = 8
+    [space]
+    actor_lr = { log = [1e-4, 1e-1] }
+    sigma = { uniform = [0.05, 0.3] }
+    [asha]
+    eta = 3
+    rungs = [150, 450, 1200]
 """
 from __future__ import annotations
 
