@@ -93,14 +93,14 @@ def _rank_key(spec: SweepSpec) -> Callable[[float | None], float]:
     return lambda v: math.inf if v is None or not math.isfinite(v) else sign * v
 
 
-def listed(spec: SweepSpec, points: list[dict[str, Any]], seeds: int | None = None,
-           name: str | None = None) -> SweepSpec:
+def listed(spec: SweepSpec, points: list[dict[str, Any]], seeds: int | None = None
+           ) -> SweepSpec:
     """A grid spec whose points are ``points`` (their searched fields), one after another."""
     fields = list(spec.space) or list(spec.grid)
     return dataclasses.replace(
         spec, search="grid", design="list", grid={k: [p[k] for p in points] for k in fields},
         space={}, trials=0, holdout_seeds=0, asha={}, pbt={}, optuna={},
-        seeds=spec.seeds if seeds is None else seeds, name=name or spec.name)
+        seeds=spec.seeds if seeds is None else seeds)
 
 
 def _curve_value(curve: np.ndarray, upto: int) -> np.ndarray:
@@ -113,12 +113,13 @@ def _trial_value(values: np.ndarray, finite: np.ndarray) -> float | None:
     return float(np.mean(values)) if finite.all() and np.isfinite(values).all() else None
 
 
-def _steps(metrics: dict[str, np.ndarray], upto: int | None = None) -> np.ndarray:
-    """Per run: environment steps taken (units, where the module counts no steps)."""
+def _steps(metrics: dict[str, np.ndarray], units: int) -> np.ndarray:
+    """Per run: environment steps taken in its first ``units`` episodes (``units``, where
+    the module counts no steps)."""
     if "steps" in metrics:
-        return np.asarray(metrics["steps"])[:, :upto].sum(1).astype(np.int64)
+        return np.asarray(metrics["steps"])[:, :units].sum(1).astype(np.int64)
     n = next(iter(metrics.values())).shape[0]
-    return np.full(n, upto or 0, np.int64)
+    return np.full(n, units, np.int64)
 
 
 def trials_from_group(spec: SweepSpec, derived: SweepSpec, metrics: dict[str, np.ndarray],
@@ -453,7 +454,8 @@ def run_asha(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
                 if metric_curve:
                     curves[t.index, :, t.units:t.units + spec.chunk] = m[spec.metric][rows]
                 t.units += spec.chunk
-                t.rl_steps += int(_steps({k: v[rows] for k, v in m.items()}).sum())
+                t.rl_steps += int(_steps({k: v[rows] for k, v in m.items()},
+                                         spec.chunk).sum())
                 if t.units in rungs:
                     reached.append(s)
             progress(len(live) * spec.seeds * spec.chunk)
@@ -591,7 +593,8 @@ def run_pbt(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
                 if metric_curve:
                     curves[t.index, :, t.units:t.units + spec.chunk] = m[spec.metric][rows]
                 t.units += spec.chunk
-                t.rl_steps += int(_steps({k: v[rows] for k, v in m.items()}).sum())
+                t.rl_steps += int(_steps({k: v[rows] for k, v in m.items()},
+                                         spec.chunk).sum())
             progress(n * spec.seeds * spec.chunk)
             units = trials[0].units
             if units % interval == 0 or units == length:
