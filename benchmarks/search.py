@@ -36,10 +36,16 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from grounding_jax import sweep  # noqa: E402
-from grounding_jax.core._io import atomic_write_text  # noqa: E402
+from grounding_jax.core._io import atomic_write_text, code_fingerprint  # noqa: E402
 from grounding_jax.core.jaxcache import enable_compilation_cache  # noqa: E402
 
-STRATEGIES = ("grid", "random", "optuna", "asha", "pbt")
+#: the strategies, and variants of them with other settings (levers tried)
+STRATEGIES = ("grid", "random", "optuna", "asha", "pbt", "pbt_small", "asha_late")
+LABELS = {"grid": "grid (the sweep file's)", "optuna": "Optuna (TPE)",
+          "asha": "ASHA (rungs at 1/9, 1/3, the end)",
+          "asha_late": "ASHA (rungs at phase 1's end and the end)",
+          "pbt": "PBT (population: a third of the grid's points)",
+          "pbt_small": "PBT (population: 30% of the grid's points)"}
 #: per family: the sweep file and, per scale, the run's settings (seeds, phase episodes,
 #: chunk, held-out seeds)
 FAMILIES = {
@@ -99,9 +105,18 @@ def specs(family: str, scale: str) -> dict[str, sweep.SweepSpec]:
     out["asha"] = {**search, "search": "asha", "trials": n_points,
                    "asha": {"eta": 3, "rungs": sorted(set(rungs)),
                             "batch": max(2, n_points // 2)}}
+    # ASHA ranked only once phase 1 is over (its rungs inside phase 1 rank the phase-1 rule's
+    # numbers), with as many trials as a third of the grid's budget pays for
+    p1 = s["phase1_episodes"]
+    late_cost = p1 + (episodes - p1) / 3
+    out["asha_late"] = {**search, "search": "asha",
+                        "trials": max(3, int(n_points * episodes / 3 / late_cost)),
+                        "asha": {"eta": 3, "rungs": [p1, episodes],
+                                 "batch": max(2, n_points // 2)}}
     out["pbt"] = {**search, "search": "pbt", "trials": max(4, n_points // 3),
                   "pbt": {"interval": max(s["chunk"], episodes // 6 // s["chunk"] * s["chunk"]),
                           "fraction": 0.25}}
+    out["pbt_small"] = {**out["pbt"], "trials": max(3, int(n_points * 0.3))}
     for k in STRATEGIES[1:]:
         out[k] = sweep.parse_spec({**out[k], "name": f"{family}_{k}"}, f["file"])
     return out
@@ -113,9 +128,14 @@ def grid_steps(folder: pathlib.Path) -> int:
         return int(m["steps"].sum())
 
 
-def run_family(family: str, scale: str, work: pathlib.Path) -> dict:
-    out = {}
+def run_family(family: str, scale: str, work: pathlib.Path, only: list[str],
+               earlier: dict) -> dict:
+    """Run a family's strategies (``only`` those; the others' entries are kept from
+    ``earlier``, the family's entry of an earlier result file)."""
+    out = dict(earlier.get("strategies", {}))
     for name, spec in specs(family, scale).items():
+        if name not in only:
+            continue
         t0 = time.perf_counter()
         s = sweep.run(spec, work, show_progress=False, overwrite=True)
         wall = time.perf_counter() - t0
@@ -132,30 +152,59 @@ def run_family(family: str, scale: str, work: pathlib.Path) -> dict:
                      "heldout_runs": s["heldout"]["runs"], "rl_steps": steps,
                      "wall_s": wall, "trials": searched,
                      "best": {k: best[k] for k in swept}}
-        if name == "pbt":
+        if spec.search == "pbt":
             out[name]["schedule"] = s["best"]["schedule"]
+        out[name]["code"] = code_fingerprint()
         print(f"{family} {name}: held-out {s['heldout']['mean']:.3f}, {steps} RL steps, "
               f"{wall:.0f} s", flush=True)
+    out = {k: out[k] for k in STRATEGIES if k in out}
+    return with_ratios({"strategies": out, "settings": FAMILIES[family][scale]})
+
+
+def with_ratios(family: dict) -> dict:
+    """A family's entry with each strategy's RL steps and held-out number against the
+    grid's, and the strategies that meet the goal (none without a grid)."""
+    out = family["strategies"]
+    if "grid" not in out:
+        return family
     grid = out["grid"]
     for v in out.values():
         v["steps_vs_grid"] = v["rl_steps"] / grid["rl_steps"]
         v["heldout_vs_grid"] = v["heldout"] - grid["heldout"]
-    return {"strategies": out, "settings": FAMILIES[family][scale],
-            "goal_met_by": [k for k in ("asha", "pbt")
-                            if out[k]["heldout_vs_grid"] >= -0.02
-                            and out[k]["steps_vs_grid"] <= 1 / 3]}
+    return family | {"goal_met_by": [k for k in out if k.startswith(("asha", "pbt"))
+                                     and out[k]["heldout_vs_grid"] >= -0.02
+                                     and out[k]["steps_vs_grid"] <= 1 / 3]}
 
 
 def table(result: dict) -> str:
     """The Markdown table of a run (``results/benchmarks/search.json``)."""
-    rows = ["| space | strategy | held-out success (mean ± std) | vs grid | RL steps | "
-            "steps vs grid | wall (s) |", "|---|---|---|---|---|---|---|"]
+    rows = ["| space | strategy | trials | held-out success (mean ± std) | vs grid | RL steps | "
+            "steps vs grid | wall (s) |", "|---|---|---|---|---|---|---|---|"]
     for family, r in result["families"].items():
         for name, v in r["strategies"].items():
-            rows.append(f"| {family} | {name} | {v['heldout']:.3f} ± {v['heldout_std']:.3f} | "
-                        f"{v['heldout_vs_grid']:+.3f} | {v['rl_steps']:,} | "
-                        f"{v['steps_vs_grid']:.2f} | {v['wall_s']:.0f} |")
+            rows.append(f"| {family} | {LABELS.get(name, name)} | {v['trials']} | "
+                        f"{v['heldout']:.3f} ± {v['heldout_std']:.3f} | "
+                        f"{v.get('heldout_vs_grid', math.nan):+.3f} | {v['rl_steps']:,} | "
+                        f"{v.get('steps_vs_grid', math.nan):.2f} | {v['wall_s']:.0f} |")
     return "\n".join(rows) + "\n"
+
+
+def merge(path: pathlib.Path, other: pathlib.Path) -> None:
+    """Fold ``other``'s strategies into the result file ``path`` (ratios recomputed)."""
+    result, extra = json.loads(path.read_text()), json.loads(other.read_text())
+    if result["scale"] != extra["scale"]:
+        raise SystemExit(f"--merge: {other} holds the {extra['scale']!r} scale, {path} the "
+                         f"{result['scale']!r} one")
+    for f, fam in extra["families"].items():
+        mine = result["families"].setdefault(f, {"strategies": {}, "settings":
+                                                 fam["settings"]})
+        mine["strategies"] = {k: ({**mine["strategies"], **fam["strategies"]})[k]
+                              for k in STRATEGIES
+                              if k in mine["strategies"] or k in fam["strategies"]}
+        result["families"][f] = with_ratios(mine)
+    result["strategies"] = result["families"]["al"]["strategies"]
+    atomic_write_text(path, json.dumps(result, indent=1) + "\n")
+    print(table(result))
 
 
 def main() -> None:
@@ -163,7 +212,19 @@ def main() -> None:
     ap.add_argument("--scale", choices=("quick", "full"), default="quick")
     ap.add_argument("--families", default="al,free")
     ap.add_argument("--out", default="results/benchmarks/search.json")
+    ap.add_argument("--merge", default=None, metavar="FILE",
+                    help="fold the strategies of another result file (same scale) into --out "
+                         "and exit")
+    ap.add_argument("--only", default=",".join(STRATEGIES),
+                    help="run only these strategies; the others' numbers are kept from --out "
+                         "(each entry records the code fingerprint it ran with)")
     args = ap.parse_args()
+    only = args.only.split(",")
+    if bad := [s for s in only if s not in STRATEGIES]:
+        ap.error(f"--only: unknown {bad[0]!r}; accepted values: {STRATEGIES}")
+    if args.merge:
+        merge(ROOT / args.out, pathlib.Path(args.merge))
+        return
     families = args.families.split(",")
     bad = [f for f in families if f not in FAMILIES]
     if bad:
@@ -171,12 +232,23 @@ def main() -> None:
     enable_compilation_cache()
     for f in families:
         specs(f, args.scale)  # every sweep validated before anything runs
-    result = {"scale": args.scale, "metric": "success_mean", "families": {}}
+    path = ROOT / args.out
+    earlier = json.loads(path.read_text()) if path.is_file() and set(only) != set(STRATEGIES) \
+        else {}
+    if earlier and earlier.get("scale") != args.scale:
+        ap.error(f"--only: {args.out} holds the {earlier.get('scale')!r} scale, not "
+                 f"{args.scale!r}")
+    result = {"scale": args.scale, "metric": "success_mean",
+              "families": dict(earlier.get("families", {}))}
     with tempfile.TemporaryDirectory() as tmp:
         for f in families:
-            result["families"][f] = run_family(f, args.scale, pathlib.Path(tmp))
-    result["strategies"] = result["families"][families[0]]["strategies"]
-    atomic_write_text(ROOT / args.out, json.dumps(result, indent=1) + "\n")
+            result["families"][f] = run_family(f, args.scale, pathlib.Path(tmp), only,
+                                               result["families"].get(f, {}))
+            atomic_write_text(path, json.dumps(result | {"strategies": result["families"][
+                next(iter(result["families"]))]["strategies"]}, indent=1) + "\n")
+    result["strategies"] = result["families"]["al" if "al" in result["families"] else
+                                              families[0]]["strategies"]
+    atomic_write_text(path, json.dumps(result, indent=1) + "\n")
     print(table(result))
 
 

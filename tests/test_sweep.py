@@ -180,7 +180,7 @@ def test_the_six_paper_sweeps_are_there():
     assert {p.stem for p in SWEEPS} == {"fig6_tl_hidden", "fig7_tl_replication",
                                         "fig8a_critic_lr", "fig8b_critic_hidden",
                                         "fig9a_actor_lr", "fig9b_actor_hidden", "al_tuning",
-                                        "free_al_tuning"}
+                                        "free_al_tuning", "al_asha"}
 
 
 BAD = [

@@ -181,8 +181,9 @@ def search_csv(spec: SweepSpec, summary: dict) -> str:
 def write_search_figure(spec: SweepSpec, summary: dict, out: pathlib.Path,
                         staged: Staged) -> None:
     """Stage a search's figure: the metric against the RL steps each trial had spent at each
-    evaluation (the best trial marked), the searched fields as parallel coordinates coloured
-    by each trial's final value, and for PBT the best lineage's schedule."""
+    evaluation (the best trial marked; a trial stopped early is a short line, or a dot), the
+    searched fields as parallel coordinates coloured by each trial's last value (where it
+    stopped), and for PBT the best lineage's schedule."""
     from grounding_jax.sweep.space import normalised
 
     plt = pyplot()
@@ -198,7 +199,7 @@ def write_search_figure(spec: SweepSpec, summary: dict, out: pathlib.Path,
         steps = units / t["units"] * t["rl_steps"]  # at a steady rate
         vals = [np.nan if v is None else v for _, v in t["evaluations"]]
         mine = best is not None and t["index"] == best["index"]
-        ax.plot(steps, vals, "-o" if mine else "-", ms=4, lw=2.2 if mine else 0.8,
+        ax.plot(steps, vals, "-o", ms=4 if mine else 2.5, lw=2.2 if mine else 0.8,
                 color="crimson" if mine else "0.55", alpha=1 if mine else 0.6, zorder=3 if mine
                 else 1, label=f"best: trial {t['index']}" if mine else None)
     ax.set(xlabel="RL steps spent by the trial", ylabel=spec.metric,
