@@ -44,8 +44,8 @@ STRATEGIES = ("grid", "random", "optuna", "asha", "pbt", "pbt_small", "asha_late
 LABELS = {"grid": "grid (the sweep file's)", "optuna": "Optuna (TPE)",
           "asha": "ASHA (rungs at 1/9, 1/3, the end)",
           "asha_late": "ASHA (rungs at phase 1's end and the end)",
-          "pbt": "PBT (population: a third of the grid's points)",
-          "pbt_small": "PBT (population: 30% of the grid's points)"}
+          "pbt": "PBT (population: a third of the grid's points, at least 4)",
+          "pbt_small": "PBT (population: 30% of the grid's points, at least 3)"}
 #: per family: the sweep file and, per scale, the run's settings (seeds, phase episodes,
 #: chunk, held-out seeds)
 FAMILIES = {
