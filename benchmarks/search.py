@@ -12,7 +12,7 @@ Goal: ASHA or PBT reaches the grid's held-out best within 2 points (0.02) using 
 third of the grid's RL steps.
 
 ``--scale quick`` (the default, what ``results/benchmarks/search.json`` holds) shortens the
-runs to fit a 2-core CPU in about an hour: fewer seeds and episodes than the sweep files;
+runs to fit a 2-core CPU in a few hours: fewer seeds and episodes than the sweep files;
 ``--scale full`` runs the files' own seeds and episodes (hours on a CPU).
 
 Usage:  python benchmarks/search.py [--scale quick|full] [--families al,free]
