@@ -444,7 +444,10 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    from grounding_jax.core import _guard
+    from grounding_jax.core import _guard, compiles
+
+    started = time.perf_counter()
+    compiles.install()  # before anything compiles: metrics.json counts the run's programs
 
     if argv is None:  # the command line: an early Ctrl-C exits cleanly, nothing written yet
         _guard.quiet_start(["python", "train.py"])
@@ -460,7 +463,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         with _guard.handle_interrupts(), _guard.folder_lock(out, "train.py"):
-            return _main(args, out)
+            return _main(args, out, started)
     except (SweepError, CheckpointError, _guard.FolderBusyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -497,7 +500,33 @@ def _read_metrics(path: pathlib.Path) -> dict:
     return data
 
 
-def _main(args: argparse.Namespace, out: pathlib.Path) -> int:
+def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> dict:
+    """The run's ``wall_s.total`` (added to ``wall``: the whole command, start to end), the
+    XLA programs it built (``compiles``, counted with ``jax.monitoring``) and its physics floor
+    (``physics_floor_s``: the RL steps the C backend simulated at the rollout-alone ceiling,
+    measured here on a sample of those very steps, plus the TL's compute -- its part's wall
+    time less its compiling; None on the MJX backend)."""
+    from grounding_jax.core import compiles
+    from grounding_jax.sim import physics
+
+    built = compiles.tally() - before
+    out: dict = {"compiles": built.programs, "compiles_detail": built.as_dict(top=12)}
+    floor = None
+    if physics.mujoco_runner.cache_info().currsize:
+        runner = physics.mujoco_runner()
+        steps = sum(runner.meter.rl_steps.values())
+        rate = runner.meter.ceiling(runner)
+        tl_compute = max(wall["tl"] - tl_compile, 0.0)
+        if rate:
+            floor = steps / rate + tl_compute
+        out["physics"] = {"rl_steps": steps, "ceiling_rl_steps_per_s": rate,
+                          "tl_compute_s": tl_compute}
+    out["physics_floor_s"] = floor
+    wall["total"] = time.perf_counter() - started
+    return out
+
+
+def _main(args: argparse.Namespace, out: pathlib.Path, started: float | None = None) -> int:
     import jax
 
     import grounding_jax as gj
@@ -526,14 +555,19 @@ def _main(args: argparse.Namespace, out: pathlib.Path) -> int:
         jax.random.key(args.seed), 8)
     if args.only:
         return rerun(out, args, k_xy, k_free, k_strip)
+    from grounding_jax.core import compiles
+
+    started = time.perf_counter() if started is None else started
+    before = compiles.tally()
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()
     env_rows = env_check(k_env, env_config)
     wall["env"] = time.perf_counter() - t
-    t = time.perf_counter()
+    t, tl_before = time.perf_counter(), compiles.tally()
     tl = tl_experiments(k_tl, out / "tl", args.settings)
     wall["tl"] = time.perf_counter() - t
+    tl_compile = sum((compiles.tally() - tl_before).stages.values())
     t = time.perf_counter()
     sweeps = al_sweeps(k_sw, out / "sweeps", args.sweeps, args.resume)
     wall["al_sweeps"] = time.perf_counter() - t
@@ -555,9 +589,10 @@ def _main(args: argparse.Namespace, out: pathlib.Path) -> int:
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
               "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "wall_s": wall,
               "version": gj.__version__, "libraries": library_versions()}
+    result.update(speed(wall, started, before, tl_compile))
     write_results(out, result)
     print(f"wrote {out / 'REPORT.md'}, {out / 'metrics.json'}, metrics.csv, modules/ "
-          f"({sum(wall.values()):.1f} s)")
+          f"({wall['total']:.1f} s, {result['compiles']} XLA programs)")
     return 0
 
 

@@ -45,6 +45,15 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     report = (tmp_path / "REPORT.md").read_text()
     assert "| test accuracy, H=50, n=20 | ~95% |" in report and "| push | left |" in report
     assert f"mujoco {data['libraries']['mujoco']}" in report
+    # the speed figures other checks read: the whole command, its programs, its floor
+    wall = data["wall_s"]
+    assert wall["total"] >= sum(v for k, v in wall.items() if k != "total") > 0
+    assert 50 < data["compiles"] == data["compiles_detail"]["programs"] < 2000
+    phys = data["physics"]
+    assert phys["rl_steps"] > 100_000 and phys["ceiling_rl_steps_per_s"] > 100
+    assert 0 < data["physics_floor_s"] < wall["total"]
+    assert f"Whole command: {wall['total']:.1f} s" in report
+    assert f"XLA programs built: {data['compiles']} " in report and "Physics floor:" in report
     ref = tl["reference"]["learners"]
     assert ref["lookup"]["test_acc_mean"] > 0.9  # the same splits: the evidence is there
     assert "| lookup |" in report and "MLP 50 ReLU (Adam)" in report

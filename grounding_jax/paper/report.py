@@ -456,6 +456,36 @@ def _strips_report(strips: dict[str, str] | None) -> list[str]:
     return lines
 
 
+def _speed_report(result: dict, wall: dict[str, float]) -> list[str]:
+    """Wall time by part, the XLA programs built and the physics floor (runs before these
+    were recorded show the wall times only)."""
+    parts = ", ".join(f"{k} {v:.1f} s" for k, v in wall.items() if k != "total")
+    lines = ["", "## Speed", ""]
+    if "total" in wall:
+        lines.append(f"Whole command: {wall['total']:.1f} s (parts: {parts}).")
+    else:
+        lines.append(f"Wall time: {parts}.")
+    if "compiles" in result:
+        d = result.get("compiles_detail", {})
+        sec = d.get("seconds", {})
+        lines += ["", f"XLA programs built: {result['compiles']} ({d.get('compiled', '?')} "
+                  f"compiled, {d.get('from_cache', '?')} loaded from the persistent cache; "
+                  f"tracing {sec.get('trace', 0):.1f} s, lowering {sec.get('lower', 0):.1f} s, "
+                  f"compiling or loading {sec.get('build', 0):.1f} s; counted with "
+                  "`jax.monitoring`)."]
+    floor, phys = result.get("physics_floor_s"), result.get("physics")
+    if floor and phys and "total" in wall:
+        lines += ["", f"Physics floor: {floor:.1f} s = {phys['rl_steps']:,} RL steps at the "
+                  f"rollout-alone ceiling of {phys['ceiling_rl_steps_per_s']:,.0f} RL steps/s "
+                  "(measured at the end of the run on a sample of the steps it simulated, "
+                  f"batches of 256) + the TL's compute {phys['tl_compute_s']:.1f} s. "
+                  f"Whole command / floor: **{wall['total'] / floor:.2f}×**."]
+    elif "physics_floor_s" in result:
+        lines += ["", "Physics floor: not measured (the MJX backend has no rollout-alone "
+                  "counter)."]
+    return lines
+
+
 def report(result: dict, strips: dict[str, str] | None = None) -> str:
     """REPORT.md: the paper's numbers beside ours, figures embedded.
 
@@ -543,7 +573,7 @@ def report(result: dict, strips: dict[str, str] | None = None) -> str:
         lines.append(f"| {r['action']} | {r['position']} | {r['final_reward']:+.3f} | "
                      f"{r['final_point_l1']:.3f} | {r['target_moved_m'] * 100:.1f} | "
                      f"{r['others_moved_m'] * 100:.2f} |")
-    lines += ["", "Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in wall.items()) + "."]
+    lines += _speed_report(result, wall)
     if result.get("reruns"):  # parts re-run alone (train.py --only) after the whole run
         lines += ["", "Re-run alone after the whole run, with the keys it gives them (train.py "
                   "--only): " + ", ".join(result["reruns"]) + "; the other parts' results "

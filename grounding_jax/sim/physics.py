@@ -14,9 +14,11 @@ start is reset to zero at each RL step on both backends, so a step depends only 
 
 from __future__ import annotations
 
+import collections
 import functools
 import os
 import threading
+import time
 from collections.abc import Callable
 
 import jax
@@ -57,6 +59,7 @@ class _MujocoRunner:
         # FULLPHYSICS = time, qpos, qvel (+ act, mocap, eq_active, ... which this scene lacks)
         if self.nstate != 1 + m.nq + m.nv:
             raise RuntimeError(f"unexpected physics state size {self.nstate} for this scene")
+        self.meter = PhysicsMeter(m.nq, m.nv, m.nu)
 
     def step(self, qpos: np.ndarray, qvel: np.ndarray, ctrl: np.ndarray, substeps: int,
              live: np.ndarray | None = None):
@@ -74,10 +77,13 @@ class _MujocoRunner:
             n = rows.size
             state0 = np.concatenate([np.zeros((n, 1)), qp[rows], qv[rows]], axis=1)
             with self.lock:
+                self.meter.sample(state0, u[rows, 0], substeps)
+                t = time.perf_counter()
                 states, sensors = self.pool.rollout(
                     m, self.datas, state0.astype(np.float64), u[rows], nstep=substeps,
                     initial_warmstart=np.zeros((n, m.nv)),
                 )
+                self.meter.seconds += time.perf_counter() - t
             last = states[:, -1]
             qp_out[rows] = last[:, 1 : 1 + m.nq]
             qv_out[rows] = last[:, 1 + m.nq :]
@@ -104,6 +110,66 @@ class _MujocoRunner:
                 mujoco.mj_forward(m, d)
                 out[i] = d.sensordata
         return out.reshape(*lead, m.nsensordata)
+
+
+class PhysicsMeter:
+    """Counts the RL steps the C backend simulates and keeps a uniform sample of them (a
+    reservoir of ``keep`` rows drawn from every 16th call), to measure the rollout-alone
+    ceiling on the very physics a run simulated (:meth:`ceiling`). Its random draws are its
+    own: they do not touch any run's keys."""
+
+    EVERY = 16
+
+    def __init__(self, nq: int, nv: int, nu: int, keep: int = 4096) -> None:
+        self.rl_steps: collections.Counter[int] = collections.Counter()  # substeps -> steps
+        self.calls = 0
+        self.seconds = 0.0  # inside mujoco.rollout
+        self._state = np.zeros((keep, 1 + nq + nv))
+        self._ctrl = np.zeros((keep, nu))
+        self._substeps = np.zeros(keep, np.int64)
+        self._seen = self._filled = 0
+        self._rng = np.random.default_rng(0)
+
+    def sample(self, state0: np.ndarray, ctrl: np.ndarray, substeps: int) -> None:
+        """Count a call's rows; offer them to the reservoir if it is a sampled call."""
+        self.rl_steps[substeps] += len(state0)
+        self.calls += 1
+        if self.calls % self.EVERY:
+            return
+        keep = len(self._state)
+        for row in range(len(state0)):
+            self._seen += 1
+            if self._filled < keep:
+                i = self._filled
+                self._filled += 1
+            else:
+                i = int(self._rng.integers(self._seen))
+                if i >= keep:
+                    continue
+            self._state[i], self._ctrl[i], self._substeps[i] = state0[row], ctrl[row], substeps
+
+    def ceiling(self, runner: _MujocoRunner, batch: int = 256, repeats: int = 2
+                ) -> float | None:
+        """RL steps per second of ``mujoco.rollout`` alone on the sampled rows, in full
+        batches of ``batch`` on the runner's thread pool (best of ``repeats``); None when
+        nothing was sampled."""
+        n = self._filled
+        if n == 0:
+            return None
+        m = runner.model
+        best = np.inf
+        for _ in range(repeats):
+            t = time.perf_counter()
+            for sub in np.unique(self._substeps[:n]):
+                rows = np.flatnonzero(self._substeps[:n] == sub)
+                for i in range(0, len(rows), batch):
+                    take = rows[i:i + batch]
+                    with runner.lock:
+                        runner.pool.rollout(m, runner.datas, self._state[take],
+                                            self._ctrl[take][:, None], nstep=int(sub),
+                                            initial_warmstart=np.zeros((len(take), m.nv)))
+            best = min(best, time.perf_counter() - t)
+        return n / best
 
 
 @functools.cache
