@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import pathlib
 from typing import Any, NamedTuple
 
@@ -84,11 +85,17 @@ SYMBOLS = np.array([[tl_data.symbol_units(lay, w) for w in range(len(tasks.TARGE
 
 
 # ------------------------------------------------------------------------------------ data
-def draw_scenes(key: jax.Array, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` random scenes: placements ``[n, 3, 3]`` and layouts ``[n]``."""
+@functools.partial(jax.jit, static_argnums=1)
+def _draw(key: jax.Array, n: int) -> tuple[jax.Array, jax.Array]:
+    # one program per n (run op by op, the sampler was ~20 programs per call site)
     k_p, k_l = jax.random.split(key)
     placements = jax.vmap(free.sample)(jax.random.split(k_p, n))
-    layouts = jax.random.randint(k_l, (n,), 0, len(scene.LAYOUTS))
+    return placements, jax.random.randint(k_l, (n,), 0, len(scene.LAYOUTS))
+
+
+def draw_scenes(key: jax.Array, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` random scenes: placements ``[n, 3, 3]`` and layouts ``[n]``."""
+    placements, layouts = _draw(key, n)
     return np.asarray(placements), np.asarray(layouts, np.int32)
 
 

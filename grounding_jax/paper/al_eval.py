@@ -61,13 +61,15 @@ def free_tasks(key: jax.Array, placements: int, actions: tuple[int, ...] = (0, 1
     """Every action of ``actions`` at every slot of ``placements`` random placements
     (:func:`placement.sample`), each placement with a random layout, as a batched
     :class:`Task` (for the ``"free"`` task set's evaluation)."""
-    placed, layout = (jnp.asarray(x) for x in tl_xy.draw_scenes(key, placements))
+    placed, layout = tl_xy.draw_scenes(key, placements)
     a, p, i = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.arange(placements),
                           indexing="ij")
     i = i.ravel()
-    return Task(action=jnp.asarray(a.ravel(), jnp.int32),
-                position=jnp.asarray(p.ravel(), jnp.int32), layout=layout[i],
-                placement=placed[i])
+    # built in NumPy and put on the device whole: no program per field
+    return jax.device_put(Task(action=a.ravel().astype(np.int32),
+                               position=p.ravel().astype(np.int32),
+                               layout=layout[i].astype(np.int32),
+                               placement=placed[i].astype(np.float32)))
 
 
 def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = tasks.PAPER
@@ -143,12 +145,7 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
     over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
 
     @jax.jit
-    def success(agents, key: jax.Array, params: EnvParams = DEFAULT_PARAMS,
-                batch: Task | None = None):
-        batch = default if batch is None else batch
-        if int(batch.action.shape[0]) != n_tasks:
-            raise ValueError(f"batch: {batch.action.shape[0]} tasks, this success runs "
-                             f"{n_tasks}")
+    def run(agents, key: jax.Array, params: EnvParams, batch: Task):
         # a params leaf with a leading axis is per agent (a sweep's traced env fields)
         axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, params)
         over_agents = jax.vmap(over_starts, in_axes=(0, None, None, axes))
@@ -156,6 +153,15 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
         out = over_agents(agents, keys, batch, params)
         out["action"], out["position"] = batch.action, batch.position
         return out
+
+    def success(agents, key: jax.Array, params: EnvParams = DEFAULT_PARAMS,
+                batch: Task | None = None):
+        batch = default if batch is None else batch
+        if int(batch.action.shape[0]) != n_tasks:
+            raise ValueError(f"batch: {batch.action.shape[0]} tasks, this success runs "
+                             f"{n_tasks}")
+        # the default tasks and a caller's go through one program (not one per call form)
+        return run(agents, key, params, batch)
 
     return success
 

@@ -30,6 +30,7 @@ touch reaches for its touching pose, without the paper's penalty for touching th
 
 from __future__ import annotations
 
+import functools
 import pathlib
 import time
 from typing import Any
@@ -172,17 +173,23 @@ def train(key: jax.Array, seeds: int, phase1: int, phase2: int, eval_placements:
 
 
 # ----------------------------------------------------------------------------- moving target
+@functools.partial(jax.jit, static_argnums=1)
+def _moving_draw(key: jax.Array, scenes: int, speed: jax.Array):
+    k_place, k_layout = jax.random.split(key)
+    placed, velocity = jax.vmap(lambda k: free.moving(k, speed))(
+        jax.random.split(k_place, scenes))
+    layout = jax.random.randint(k_layout, (scenes,), 0, len(scene.LAYOUTS), jnp.int32)
+    return placed, velocity, layout
+
+
 def moving_tasks(key: jax.Array, scenes: int, speed: Any, action: int,
                  told_start: bool) -> Task:
     """``scenes`` tasks whose target (the left slot) slides right at ``speed`` m/s
     (:func:`placement.moving`); ``told_start``: the actor is told only where it started."""
-    k_place, k_layout = jax.random.split(key)
-    placed, velocity = jax.vmap(lambda k: free.moving(k, speed))(
-        jax.random.split(k_place, scenes))
+    placed, velocity, layout = _moving_draw(key, scenes, jnp.float32(speed))
     i32 = jnp.int32
     return Task(action=jnp.full((scenes,), action, i32), position=jnp.zeros((scenes,), i32),
-                layout=jax.random.randint(k_layout, (scenes,), 0, len(scene.LAYOUTS), i32),
-                placement=placed, velocity=velocity,
+                layout=layout, placement=placed, velocity=velocity,
                 target_xy=placed[:, 0, :2] if told_start else None)
 
 
