@@ -514,13 +514,13 @@ def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> 
     floor = None
     if physics.mujoco_runner.cache_info().currsize:
         runner = physics.mujoco_runner()
-        steps = sum(runner.meter.rl_steps.values())
+        steps = sum(runner.meter.totals().values())
         rate = runner.meter.ceiling(runner)
         tl_compute = max(wall["tl"] - tl_compile, 0.0)
         if rate:
             floor = steps / rate + tl_compute
         out["physics"] = {"rl_steps": steps, "ceiling_rl_steps_per_s": rate,
-                          "tl_compute_s": tl_compute}
+                          "tl_compute_s": tl_compute, "step_handler": physics.step_handler()}
     out["physics_floor_s"] = floor
     wall["total"] = time.perf_counter() - started
     return out

@@ -51,8 +51,8 @@ def installed(tmp_path_factory) -> pathlib.Path:
     # built as pip builds it for users (an isolated build env, as the CI's editable install)
     src = tmp / "src"
     shutil.copytree(ROOT / "grounding_jax", src / "grounding_jax",
-                    ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("pyproject.toml", "README.md"):
+                    ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.pyd"))
+    for name in ("pyproject.toml", "setup.py", "README.md"):
         shutil.copy(ROOT / name, src / name)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w",
                     str(tmp / "dist"), str(src)], check=True, capture_output=True, timeout=600)
@@ -85,7 +85,8 @@ robot = gj.load({str(MODULES)!r})
 from grounding_jax import sweep  # its adapters come through the wheel's entry points
 spec = sweep.parse_spec({{"module": "tl", "grid": {{"hidden": [3]}}}})
 import grounding_jax.paper.adapters as adapters
-print(json.dumps({{"file": str(here), "obs": np.asarray(state.obs).tolist(),
+from grounding_jax.sim import physics
+print(json.dumps({{"file": str(here), "handler": physics.step_handler(), "obs": np.asarray(state.obs).tolist(),
                   "rendered": rendered, "red": robot.tl.localize(3, "red"),
                   "truth": tl_data.label_of(3, tl_data.word_index("red")),
                   "modules": sorted(sweep.FIELDS), "adapters": adapters.__file__,
@@ -96,6 +97,11 @@ print(json.dumps({{"file": str(here), "obs": np.asarray(state.obs).tolist(),
     assert len(out["obs"]) == 11 and all(map(lambda v: v == v, out["obs"]))
     assert out["modules"] == ["al", "tl"] and out["points"] == 1
     assert pathlib.Path(out["adapters"]).is_relative_to(installed.resolve())
+    # the wheel holds the compiled physics step wherever a C++ compiler built it
+    import shutil
+
+    if shutil.which("c++") or shutil.which("g++"):
+        assert out["handler"] == "compiled"
     if isinstance(out["rendered"], str):
         pytest.skip(f"no headless OpenGL backend: {out['rendered']}")
     assert out["rendered"] is True  # the camera sees what the shipped bitmaps hold

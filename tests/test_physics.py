@@ -84,3 +84,67 @@ def test_an_error_inside_an_ffi_handler_reaches_the_caller():
     call = jax.ffi.ffi_call("grounding_jax_test_raise", jax.ShapeDtypeStruct((2,), jnp.float32))
     with pytest.raises(Exception, match=r"ValueError: bad rows: \(2, 3\), rows=7"):
         jax.block_until_ready(jax.jit(lambda x: call(x, rows=np.int64(7)))(jnp.ones((2, 3))))
+
+
+def _compiled_built() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("grounding_jax.sim._mjstep") is not None
+
+
+@pytest.mark.skipif(not _compiled_built(), reason="the compiled step was not built here (no "
+                    "C++ compiler at install): the ctypes handler runs instead")
+def test_the_compiled_step_is_used_where_built_and_its_engine_equals_the_runner():
+    assert physics.step_handler() == "compiled"
+    native = physics.mujoco_runner().meter.native
+    qpos, qvel, ctrl = _batch((6,), seed=3)
+    state = np.concatenate([np.zeros((6, 1)), qpos, qvel], axis=1)
+    y = native.run(state, ctrl.astype(np.float64), 9)
+    q1, v1, s1 = physics.mujoco_runner().step(qpos, qvel, ctrl, 9)
+    nq, nv = scene.index().nq, scene.index().nv
+    np.testing.assert_array_equal(y[:, :nq], q1)
+    np.testing.assert_array_equal(y[:, nq:nq + nv], v1)
+    np.testing.assert_array_equal(y[:, nq + nv:], s1)
+    # its counters: the live rows each call simulated
+    import jax
+
+    step, _ = physics.make_physics("mujoco", 4)
+    before = physics.mujoco_runner().meter.totals()[4]
+    jax.block_until_ready(jax.jit(step)(qpos, qvel, ctrl, np.arange(6) % 2 == 0))
+    assert physics.mujoco_runner().meter.totals()[4] - before == 3
+
+
+def test_the_ctypes_fallback_gives_the_same_physics_and_a_bad_choice_is_named(tmp_path):
+    import subprocess
+    import sys
+
+    script = tmp_path / "fallback.py"
+    script.write_text(
+        "import jax, numpy as np\n"
+        "from grounding_jax.sim import physics\n"
+        "step, _ = physics.make_physics('mujoco', 7)\n"
+        "rng = np.random.default_rng(0)\n"
+        "x = [np.load(f) for f in ('q.npy', 'v.npy', 'u.npy')]\n"
+        "q, v, s = jax.jit(step)(*x)\n"
+        "np.save('out.npy', np.concatenate([q, v, s], axis=-1))\n"
+        "print(physics.step_handler())\n")
+    qpos, qvel, ctrl = _batch((5,), seed=1)
+    for name, a in (("q", qpos), ("v", qvel), ("u", ctrl)):
+        np.save(tmp_path / f"{name}.npy", a)
+    import os
+
+    env = {**os.environ, "GROUNDING_JAX_PHYSICS_HANDLER": "python"}
+    run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "python"
+    q1, v1, s1 = physics.mujoco_runner().step(qpos, qvel, ctrl, 7)
+    np.testing.assert_array_equal(np.load(tmp_path / "out.npy"),
+                                  np.concatenate([q1, v1, s1], axis=-1))
+    env["GROUNDING_JAX_PHYSICS_HANDLER"] = "fortran"
+    bad = subprocess.run([sys.executable, "-c", "from grounding_jax.sim import physics; "
+                          "physics.handler_choice()"], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert bad.returncode != 0
+    assert ("GROUNDING_JAX_PHYSICS_HANDLER: unknown value 'fortran'; accepted values: "
+            "('auto', 'compiled', 'python')") in bad.stderr

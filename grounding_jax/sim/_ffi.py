@@ -162,7 +162,7 @@ def _wrap(fn: Handler) -> Callable[[C.POINTER(_CallFrame)], int | None]:
     return handler
 
 
-def register(name: str, fn: Handler) -> None:
+def register(name: str, fn: Handler | None = None, capsule: object = None) -> None:
     """Register ``fn`` as the CPU FFI target ``name`` (once per process; later calls with
     the same name are no-ops).
 
@@ -171,12 +171,18 @@ def register(name: str, fn: Handler) -> None:
         fn: ``fn(inputs, outputs, attributes)``: NumPy views of the input buffers (read
             them, do not keep them), of the output buffers (fill them in place) and the
             call's scalar attributes by name.
+        capsule: instead of ``fn``, a compiled handler already wrapped by
+            ``jax.ffi.pycapsule`` (kept alive here).
     """
     import jax
 
     with _lock:
         if name in _registered:
             return
-        cfn = _HandlerType(_wrap(fn))
-        jax.ffi.register_ffi_target(name, jax.ffi.pycapsule(cfn), platform="cpu")
-        _registered[name] = cfn
+        if capsule is None:
+            cfn = _HandlerType(_wrap(fn))
+            capsule, keep = jax.ffi.pycapsule(cfn), cfn
+        else:
+            keep = capsule
+        jax.ffi.register_ffi_target(name, capsule, platform="cpu")
+        _registered[name] = keep

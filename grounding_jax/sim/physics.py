@@ -15,6 +15,7 @@ start is reset to zero at each RL step on both backends, so a step depends only 
 from __future__ import annotations
 
 import collections
+import ctypes as C
 import functools
 import os
 import threading
@@ -129,6 +130,7 @@ class PhysicsMeter:
         self._substeps = np.zeros(keep, np.int64)
         self._seen = self._filled = 0
         self._rng = np.random.default_rng(0)
+        self.native: _Native | None = None  # the compiled handler's own counters, if in use
 
     def sample(self, state0: np.ndarray, ctrl: np.ndarray, substeps: int) -> None:
         """Count a call's rows; offer them to the reservoir if it is a sampled call."""
@@ -148,27 +150,51 @@ class PhysicsMeter:
                     continue
             self._state[i], self._ctrl[i], self._substeps[i] = state0[row], ctrl[row], substeps
 
+    def totals(self) -> collections.Counter[int]:
+        """RL steps simulated so far by substeps, through either handler."""
+        out = collections.Counter(self.rl_steps)
+        if self.native is not None:
+            counts = self.native.read(samples=False)[1]
+            out.update({k: int(v) for k, v in counts.items() if v})
+        return out
+
+    def _samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self._filled
+        state, ctrl, sub = self._state[:n], self._ctrl[:n], self._substeps[:n]
+        if self.native is not None:
+            _, _, (s2, c2, u2) = self.native.read(samples=True)
+            state, ctrl, sub = (np.concatenate(p) for p in ((state, s2), (ctrl, c2),
+                                                            (sub, u2)))
+        return state, ctrl, sub
+
     def ceiling(self, runner: _MujocoRunner, batch: int = 256, repeats: int = 2
                 ) -> float | None:
-        """RL steps per second of ``mujoco.rollout`` alone on the sampled rows, in full
-        batches of ``batch`` on the runner's thread pool (best of ``repeats``); None when
-        nothing was sampled."""
-        n = self._filled
+        """RL steps per second of the physics alone on the sampled rows, in full batches of
+        ``batch``: ``mujoco.rollout`` on the runner's thread pool, or the compiled step where
+        it is in use and faster (best of ``repeats``); None when nothing was sampled."""
+        state, ctrl, subs = self._samples()
+        n = len(state)
         if n == 0:
             return None
         m = runner.model
+
+        def rollout(take: np.ndarray, sub: int) -> None:
+            with runner.lock:
+                runner.pool.rollout(m, runner.datas, state[take], ctrl[take][:, None],
+                                    nstep=sub, initial_warmstart=np.zeros((len(take), m.nv)))
+
+        engines = [rollout]
+        if self.native is not None:  # the compiled step alone: where it is faster, the floor
+            engines.append(lambda take, sub: self.native.run(state[take], ctrl[take], sub))
         best = np.inf
         for _ in range(repeats):
-            t = time.perf_counter()
-            for sub in np.unique(self._substeps[:n]):
-                rows = np.flatnonzero(self._substeps[:n] == sub)
-                for i in range(0, len(rows), batch):
-                    take = rows[i:i + batch]
-                    with runner.lock:
-                        runner.pool.rollout(m, runner.datas, self._state[take],
-                                            self._ctrl[take][:, None], nstep=int(sub),
-                                            initial_warmstart=np.zeros((len(take), m.nv)))
-            best = min(best, time.perf_counter() - t)
+            for engine in engines:
+                t = time.perf_counter()
+                for sub in np.unique(subs):
+                    rows = np.flatnonzero(subs == sub)
+                    for i in range(0, len(rows), batch):
+                        engine(rows[i:i + batch], int(sub))
+                best = min(best, time.perf_counter() - t)
         return n / best
 
 
@@ -178,6 +204,121 @@ def mujoco_runner(nthread: int | None = None) -> _MujocoRunner:
     if nthread is None:
         nthread = int(os.environ.get("GROUNDING_JAX_THREADS", os.cpu_count() or 1))
     return _MujocoRunner(nthread)
+
+
+class _Native:
+    """The compiled step handler (``_mjstep``, built when the package installs), set up on
+    its own MjData per thread; None from :func:`_native` where it was not built."""
+
+    KEEP = 4096
+
+    def __init__(self, lib: C.CDLL, model: mujoco.MjModel, nthread: int) -> None:
+        import glob
+
+        self.lib, self.model = lib, model
+        self.datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
+        so = glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco.so*"))
+        mj = C.CDLL(so[0]) if so else C.CDLL(None)
+        warn = self.datas[0].warning.number
+        sizes = (C.c_int * 6)(model.nq, model.nv, model.nu, model.nsensordata, len(warn),
+                              warn.strides[0] // warn.itemsize)
+        st = mujoco.mjtState
+        specs = (C.c_uint * 3)(int(st.mjSTATE_FULLPHYSICS), int(st.mjSTATE_CTRL),
+                               int(st.mjSTATE_WARMSTART))
+        n = len(self.datas)
+        datas = (C.c_void_p * n)(*[d._address for d in self.datas])
+        sens = (C.c_void_p * n)(*[d.sensordata.ctypes.data for d in self.datas])
+        warns = (C.c_void_p * n)(*[d.warning.number.ctypes.data for d in self.datas])
+        fn = [C.cast(getattr(mj, f), C.c_void_p) for f in ("mj_step", "mj_setState",
+                                                          "mj_getState")]
+        lib.gj_setup.restype = C.c_int
+        rc = lib.gj_setup(C.c_void_p(model._address), sizes, specs, self.KEEP, *fn, n, datas,
+                          sens, warns)
+        if rc != 0:
+            raise RuntimeError("the compiled physics step could not be set up (a batch was "
+                               "in flight)")
+        self._keep = (datas, sens, warns)  # the addresses stay valid while these live
+        import atexit
+
+        atexit.register(lib.gj_shutdown)
+
+    def run(self, state: np.ndarray, ctrl: np.ndarray, substeps: int) -> np.ndarray:
+        """The compiled step alone on rows ``state`` (time, qpos, qvel) and ``ctrl``
+        (uncounted): ``[rows, nq + nv + nsensordata]`` float32."""
+        m = self.model
+        x = np.concatenate([state[:, 1:], ctrl, np.ones((len(state), 1))], axis=1)
+        x = np.ascontiguousarray(x, np.float32)
+        y = np.zeros((len(x), m.nq + m.nv + m.nsensordata), np.float32)
+        rc = self.lib.gj_run(x.ctypes.data_as(C.c_void_p), y.ctypes.data_as(C.c_void_p),
+                             C.c_int64(len(x)), C.c_int(substeps))
+        if rc != 0:
+            raise RuntimeError("the compiled physics step is not set up")
+        return y
+
+    def reset(self) -> None:
+        """Zero the counters and empty the sample."""
+        self.lib.gj_reset_meter()
+
+    def read(self, samples: bool) -> tuple[dict, dict[int, int], tuple]:
+        """(calls and seconds, RL steps by substeps, the sampled rows if ``samples``)."""
+        m = self.model
+        info = np.zeros(3, np.int64)
+        counts = np.zeros(64, np.int64)
+        ptr = lambda a: a.ctypes.data_as(C.c_void_p)  # noqa: E731
+        if samples:
+            n = self.KEEP
+            state = np.zeros((n, 1 + m.nq + m.nv))
+            ctrl = np.zeros((n, m.nu))
+            sub = np.zeros(n, np.int32)
+            self.lib.gj_meter(ptr(info), ptr(counts), ptr(state), ptr(ctrl), ptr(sub))
+            k = int(info[2])
+            rows = (state[:k], ctrl[:k], sub[:k].astype(np.int64))
+        else:
+            self.lib.gj_meter(ptr(info), ptr(counts), None, None, None)
+            rows = ()
+        meta = {"calls": int(info[0]), "seconds": info[1] / 1e9}
+        return meta, {i: int(c) for i, c in enumerate(counts) if c and i}, rows
+
+
+#: ``GROUNDING_JAX_PHYSICS_HANDLER``: ``auto`` (default: the compiled handler where it was
+#: built, else ``ctypes``), ``compiled`` (an error where it was not built) or ``python``.
+HANDLERS = ("auto", "compiled", "python")
+
+
+def handler_choice() -> str:
+    """The step handler asked for by ``GROUNDING_JAX_PHYSICS_HANDLER`` (checked)."""
+    choice = os.environ.get("GROUNDING_JAX_PHYSICS_HANDLER", "auto").lower() or "auto"
+    if choice not in HANDLERS:
+        raise ValueError(f"GROUNDING_JAX_PHYSICS_HANDLER: unknown value {choice!r}; accepted "
+                         f"values: {HANDLERS}")
+    return choice
+
+
+@functools.cache
+def step_handler() -> str:
+    """Register the C backend's step target once per process and say which handler it is:
+    ``"compiled"`` (``_mjstep``) or ``"python"`` (``ctypes``, the fallback)."""
+    choice = handler_choice()
+    runner = mujoco_runner()
+    if choice != "python":
+        try:
+            from grounding_jax.sim import _mjstep
+        except ImportError:
+            if choice == "compiled":
+                raise RuntimeError("GROUNDING_JAX_PHYSICS_HANDLER=compiled: the compiled step "
+                                   "(grounding_jax/sim/_mjstep.cc) was not built; reinstall "
+                                   "with a C++ compiler present") from None
+        else:
+            lib = C.CDLL(_mjstep.__file__)
+            lib.gj_step_handler.restype = C.c_void_p
+            runner.meter.native = _Native(lib, runner.model, runner.nthread)
+            import jax
+
+            capsule = jax.ffi.pycapsule(C.cast(lib.gj_step_handler(), C.CFUNCTYPE(C.c_void_p)))
+            _ffi.register(STEP_TARGET, capsule=capsule)
+            return "compiled"
+    _ffi.register(STEP_TARGET, _step_handler)
+    return "python"
 
 
 STEP_TARGET = "grounding_jax_mujoco_step"
@@ -208,7 +349,7 @@ def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
     # C MuJoCo is called as a named XLA FFI target (``_ffi``), not through
     # ``jax.pure_callback``: those programs go to JAX's persistent cache. Each call takes one
     # array and returns one, so the per-array cost of crossing into Python is paid once.
-    _ffi.register(STEP_TARGET, _step_handler)
+    step_handler()
     _ffi.register(FORWARD_TARGET, _forward_handler)
 
     def flag(live, lead):
