@@ -86,7 +86,8 @@ from grounding_jax import sweep  # its adapters come through the wheel's entry p
 spec = sweep.parse_spec({{"module": "tl", "grid": {{"hidden": [3]}}}})
 import grounding_jax.paper.adapters as adapters
 from grounding_jax.sim import physics
-print(json.dumps({{"file": str(here), "handler": physics.step_handler(), "obs": np.asarray(state.obs).tolist(),
+print(json.dumps({{"file": str(here), "handler": physics.step_handler(),
+                  "obs": np.asarray(state.obs).tolist(),
                   "rendered": rendered, "red": robot.tl.localize(3, "red"),
                   "truth": tl_data.label_of(3, tl_data.word_index("red")),
                   "modules": sorted(sweep.FIELDS), "adapters": adapters.__file__,

@@ -476,13 +476,17 @@ def _speed_report(result: dict, wall: dict[str, float]) -> list[str]:
     floor, phys = result.get("physics_floor_s"), result.get("physics")
     if floor and phys and "total" in wall:
         lines += ["", f"Physics floor: {floor:.1f} s = {phys['rl_steps']:,} RL steps at the "
-                  f"rollout-alone ceiling of {phys['ceiling_rl_steps_per_s']:,.0f} RL steps/s "
+                  f"physics-alone ceiling of {phys['ceiling_rl_steps_per_s']:,.0f} RL steps/s "
                   "(measured at the end of the run on a sample of the steps it simulated, "
-                  f"batches of 256) + the TL's compute {phys['tl_compute_s']:.1f} s. "
+                  "batches of 256, the faster of `mujoco.rollout` and the compiled step) + "
+                  f"the TL's compute {phys['tl_compute_s']:.1f} s. "
                   f"Whole command / floor: **{wall['total'] / floor:.2f}×**."]
     elif "physics_floor_s" in result:
         lines += ["", "Physics floor: not measured (the MJX backend has no rollout-alone "
                   "counter)."]
+    else:
+        lines += ["", "XLA programs and physics floor: not recorded (this run predates "
+                  "them)."]
     return lines
 
 
