@@ -148,3 +148,29 @@ def test_the_ctypes_fallback_gives_the_same_physics_and_a_bad_choice_is_named(tm
     assert bad.returncode != 0
     assert ("GROUNDING_JAX_PHYSICS_HANDLER: unknown value 'fortran'; accepted values: "
             "('auto', 'compiled', 'python')") in bad.stderr
+
+
+@pytest.mark.skipif(not _compiled_built(), reason="the compiled step was not built here")
+def test_the_compiled_step_still_runs_in_a_forked_child(tmp_path):
+    import subprocess
+    import sys
+
+    script = tmp_path / "fork.py"
+    script.write_text(
+        "import os, numpy as np\n"
+        "from grounding_jax.sim import physics, scene\n"
+        "assert physics.step_handler() == 'compiled'\n"
+        "native = physics.mujoco_runner().meter.native\n"
+        "q = np.tile(scene.home_qpos(), (4, 1))\n"
+        "state = np.concatenate([np.zeros((4, 1)), q, np.zeros((4, scene.index().nv))], 1)\n"
+        "ctrl = q[:, scene.index().arm_qpos] + 0.1\n"
+        "before = native.run(state, ctrl, 5)\n"
+        "pid = os.fork()\n"
+        "if pid == 0:\n"
+        "    os._exit(0 if np.array_equal(native.run(state, ctrl, 5), before) else 3)\n"
+        "_, status = os.waitpid(pid, 0)\n"
+        "print('child', os.waitstatus_to_exitcode(status))\n")
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "child 0"

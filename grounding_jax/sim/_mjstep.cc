@@ -22,9 +22,14 @@
 #include <cstdint>
 #include <cstring>
 #include <mutex>
+#include <new>
 #include <string>
 #include <thread>
 #include <vector>
+
+#ifndef _WIN32
+#include <pthread.h>
+#endif
 
 namespace {
 
@@ -344,6 +349,21 @@ void StopPool() {
   E.stop = false;
 }
 
+#ifndef _WIN32
+// In a child process made by fork() the pool's threads do not exist, and a lock another
+// thread held at the fork stays held: start the child with fresh locks and no helper threads
+// (batches then run on the calling thread alone). The old objects are left as they are,
+// never joined or destroyed.
+void AfterFork() {
+  new (&E.mu) std::mutex();
+  new (&E.call_mu) std::mutex();
+  new (&E.wake) std::condition_variable();
+  new (&E.finished) std::condition_variable();
+  new (&E.threads) std::vector<std::thread>();
+  E.busy = 0;
+}
+#endif
+
 }  // namespace
 
 extern "C" {
@@ -394,6 +414,10 @@ int gj_setup(const void* model, const int* sizes, const unsigned int* specs, int
   E.sample_ctrl.assign(static_cast<size_t>(keep) * E.nu, 0.0);
   E.sample_substeps.assign(keep, 0);
   for (int i = 1; i < nworker; i++) E.threads.emplace_back(Loop, i);
+#ifndef _WIN32
+  static bool fork_handler = false;
+  if (!fork_handler) fork_handler = pthread_atfork(nullptr, nullptr, AfterFork) == 0;
+#endif
   E.ready = true;
   return 0;
 }
