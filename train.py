@@ -448,6 +448,7 @@ def main(argv: list[str] | None = None) -> int:
 
     started = time.perf_counter()
     compiles.install()  # before anything compiles: metrics.json counts the run's programs
+    before = compiles.tally()
 
     if argv is None:  # the command line: an early Ctrl-C exits cleanly, nothing written yet
         _guard.quiet_start(["python", "train.py"])
@@ -463,7 +464,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         with _guard.handle_interrupts(), _guard.folder_lock(out, "train.py"):
-            return _main(args, out, started)
+            return _main(args, out, started, before)
     except (SweepError, CheckpointError, _guard.FolderBusyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -503,9 +504,10 @@ def _read_metrics(path: pathlib.Path) -> dict:
 def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> dict:
     """The run's ``wall_s.total`` (added to ``wall``: the whole command, start to end), the
     XLA programs it built (``compiles``, counted with ``jax.monitoring``) and its physics floor
-    (``physics_floor_s``: the RL steps the C backend simulated at the rollout-alone ceiling,
+    (``physics_floor_s``: the RL steps the C backend simulated at the physics-alone ceiling,
     measured here on a sample of those very steps, plus the TL's compute -- its part's wall
-    time less its compiling; None on the MJX backend)."""
+    time less its compiling; None on the MJX backend). ``before``: the program tally at the
+    command's start."""
     from grounding_jax.core import compiles
     from grounding_jax.sim import physics
 
@@ -526,7 +528,7 @@ def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> 
     return out
 
 
-def _main(args: argparse.Namespace, out: pathlib.Path, started: float | None = None) -> int:
+def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -> int:
     import jax
 
     import grounding_jax as gj
@@ -557,8 +559,6 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float | None = N
         return rerun(out, args, k_xy, k_free, k_strip)
     from grounding_jax.core import compiles
 
-    started = time.perf_counter() if started is None else started
-    before = compiles.tally()
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()

@@ -30,7 +30,6 @@ class Tally:
 
     programs: int
     from_cache: int
-    seconds: float
     by_name: dict[str, int]
     stages: dict[str, float] = dataclasses.field(default_factory=dict)
     seconds_by_name: dict[str, float] = dataclasses.field(default_factory=dict)
@@ -42,8 +41,7 @@ class Tally:
         secs = {k: d for k, v in self.seconds_by_name.items()
                 if (d := v - other.seconds_by_name.get(k, 0.0)) > 0}
         return Tally(self.programs - other.programs, self.from_cache - other.from_cache,
-                     self.seconds - other.seconds, {k: v for k, v in names.items() if v},
-                     stages, secs)
+                     {k: v for k, v in names.items() if v}, stages, secs)
 
     def as_dict(self, top: int = 0) -> dict:
         """JSON-ready: the counts, and the ``top`` most frequent program names."""
@@ -95,5 +93,4 @@ def install() -> None:
 def tally() -> Tally:
     """The programs built since :func:`install` was first called."""
     with _lock:
-        return Tally(sum(_names.values()), _hits, float(sum(_seconds.values())),
-                     dict(_names), dict(_stage_s), dict(_seconds))
+        return Tally(sum(_names.values()), _hits, dict(_names), dict(_stage_s), dict(_seconds))

@@ -14,9 +14,11 @@ start is reset to zero at each RL step on both backends, so a step depends only 
 
 from __future__ import annotations
 
+import atexit
 import collections
 import ctypes as C
 import functools
+import glob
 import os
 import threading
 import time
@@ -79,12 +81,10 @@ class _MujocoRunner:
             state0 = np.concatenate([np.zeros((n, 1)), qp[rows], qv[rows]], axis=1)
             with self.lock:
                 self.meter.sample(state0, u[rows, 0], substeps)
-                t = time.perf_counter()
                 states, sensors = self.pool.rollout(
                     m, self.datas, state0.astype(np.float64), u[rows], nstep=substeps,
                     initial_warmstart=np.zeros((n, m.nv)),
                 )
-                self.meter.seconds += time.perf_counter() - t
             last = states[:, -1]
             qp_out[rows] = last[:, 1 : 1 + m.nq]
             qv_out[rows] = last[:, 1 + m.nq :]
@@ -124,7 +124,6 @@ class PhysicsMeter:
     def __init__(self, nq: int, nv: int, nu: int, keep: int = 4096) -> None:
         self.rl_steps: collections.Counter[int] = collections.Counter()  # substeps -> steps
         self.calls = 0
-        self.seconds = 0.0  # inside mujoco.rollout
         self._state = np.zeros((keep, 1 + nq + nv))
         self._ctrl = np.zeros((keep, nu))
         self._substeps = np.zeros(keep, np.int64)
@@ -208,13 +207,11 @@ def mujoco_runner(nthread: int | None = None) -> _MujocoRunner:
 
 class _Native:
     """The compiled step handler (``_mjstep``, built when the package installs), set up on
-    its own MjData per thread; None from :func:`_native` where it was not built."""
+    its own MjData per thread by :func:`step_handler` where it was built."""
 
     KEEP = 4096
 
     def __init__(self, lib: C.CDLL, model: mujoco.MjModel, nthread: int) -> None:
-        import glob
-
         self.lib, self.model = lib, model
         self.datas = [mujoco.MjData(model) for _ in range(max(nthread, 1))]
         so = glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco.so*"))
@@ -238,8 +235,6 @@ class _Native:
             raise RuntimeError("the compiled physics step could not be set up (a batch was "
                                "in flight)")
         self._keep = (datas, sens, warns)  # the addresses stay valid while these live
-        import atexit
-
         atexit.register(lib.gj_shutdown)
 
     def run(self, state: np.ndarray, ctrl: np.ndarray, substeps: int) -> np.ndarray:
@@ -312,8 +307,6 @@ def step_handler() -> str:
             lib = C.CDLL(_mjstep.__file__)
             lib.gj_step_handler.restype = C.c_void_p
             runner.meter.native = _Native(lib, runner.model, runner.nthread)
-            import jax
-
             capsule = jax.ffi.pycapsule(C.cast(lib.gj_step_handler(), C.CFUNCTYPE(C.c_void_p)))
             _ffi.register(STEP_TARGET, capsule=capsule)
             return "compiled"
