@@ -151,33 +151,6 @@ def replay_ceiling(rows: list, batch: int) -> float:
     return n / (time.perf_counter() - t)
 
 
-def replay_sample(state: np.ndarray, ctrl: np.ndarray, batch: int) -> float:
-    """RL steps/s of the physics alone simulating the compiled handler's sample of the run's
-    rows (time 0, qpos, qvel; controls) in full batches: ``mujoco.rollout`` or the compiled
-    step alone, whichever is faster."""
-    runner = physics.mujoco_runner()
-    m, idx = runner.model, scene.index()
-    n = (len(state) // batch) * batch
-    if n == 0:
-        return float("nan")
-    q = state[:n, 1:1 + idx.nq].astype(np.float32)
-    v = state[:n, 1 + idx.nq:].astype(np.float32)
-    u = ctrl[:n].astype(np.float32)
-    native = runner.meter.native
-    best = np.inf
-    for _ in range(3):  # a sample is small: best of three against this machine's noise
-        t = time.perf_counter()
-        for i in range(0, n, batch):
-            runner.step(q[i:i + batch], v[i:i + batch], u[i:i + batch], SUBSTEPS)
-        best = min(best, time.perf_counter() - t)
-        t = time.perf_counter()
-        for i in range(0, n, batch):  # the compiled step alone, on the same rows
-            native.run(state[i:i + batch], ctrl[i:i + batch], SUBSTEPS)
-        best = min(best, time.perf_counter() - t)
-    del m
-    return n / best
-
-
 def bench_reference(agents: int, episodes: int) -> dict:
     total = physics_s = steps = 0.0
     for seed in range(agents):
@@ -213,14 +186,17 @@ def bench_trainer(backend: str, batch: int, episodes: int, loop: str) -> dict:
            "rl_steps_per_s": steps / run_s}
     if backend == "mujoco" and native is not None:
         # the compiled handler: its own timer (physics and its threads) and row sample
-        meta, _, (state, ctrl, _) = native.read(samples=True)
+        meta, _, (state, ctrl, subs) = native.read(samples=True)
         net = meta["calls"] * network_s_per_step(cfg, loop, keys, hp)
         row["handler"] = "compiled"
         row["split"] = {"physics": meta["seconds"] / run_s,
                         "callback": (run_s - meta["seconds"] - net) / run_s,
                         "network_update_env": net / run_s}
         row["physics_calls"] = meta["calls"]
-        row["ceiling_same_physics_rl_steps_per_s"] = replay_sample(state, ctrl, batch)
+        # the physics alone on the step's sample of the run's rows, in full batches: the
+        # faster of mujoco.rollout and the compiled step, best of three (a sample is small)
+        row["ceiling_same_physics_rl_steps_per_s"] = physics.ceiling(
+            physics.mujoco_runner(), state, ctrl, subs, batch, repeats=3, native=native)
     elif backend == "mujoco":
         net = meter.calls * network_s_per_step(cfg, loop, keys, hp)
         row["handler"] = "python"

@@ -168,33 +168,41 @@ class PhysicsMeter:
 
     def ceiling(self, runner: _MujocoRunner, batch: int = 256, repeats: int = 2
                 ) -> float | None:
-        """RL steps per second of the physics alone on the sampled rows, in full batches of
-        ``batch``: ``mujoco.rollout`` on the runner's thread pool, or the compiled step where
-        it is in use and faster (best of ``repeats``); None when nothing was sampled."""
-        state, ctrl, subs = self._samples()
-        n = len(state)
-        if n == 0:
-            return None
-        m = runner.model
+        """:func:`ceiling` on the sampled rows (None when nothing was sampled)."""
+        return ceiling(runner, *self._samples(), batch=batch, repeats=repeats,
+                       native=self.native)
 
-        def rollout(take: np.ndarray, sub: int) -> None:
-            with runner.lock:
-                runner.pool.rollout(m, runner.datas, state[take], ctrl[take][:, None],
-                                    nstep=sub, initial_warmstart=np.zeros((len(take), m.nv)))
 
-        engines = [rollout]
-        if self.native is not None:  # the compiled step alone: where it is faster, the floor
-            engines.append(lambda take, sub: self.native.run(state[take], ctrl[take], sub))
-        best = np.inf
-        for _ in range(repeats):
-            for engine in engines:
-                t = time.perf_counter()
-                for sub in np.unique(subs):
-                    rows = np.flatnonzero(subs == sub)
-                    for i in range(0, len(rows), batch):
-                        engine(rows[i:i + batch], int(sub))
-                best = min(best, time.perf_counter() - t)
-        return n / best
+def ceiling(runner: _MujocoRunner, state: np.ndarray, ctrl: np.ndarray, substeps: np.ndarray,
+            batch: int = 256, repeats: int = 2, native: _Native | None = None
+            ) -> float | None:
+    """RL steps per second of the physics alone on rows ``state`` (time, qpos, qvel),
+    ``ctrl`` and ``substeps`` (per row), in full batches of ``batch``: ``mujoco.rollout`` on
+    the runner's thread pool, or the compiled step ``native`` where given and faster (best of
+    ``repeats``); None for no rows."""
+    n = len(state)
+    if n == 0:
+        return None
+    m = runner.model
+
+    def rollout(take: np.ndarray, sub: int) -> None:
+        with runner.lock:
+            runner.pool.rollout(m, runner.datas, state[take], ctrl[take][:, None],
+                                nstep=sub, initial_warmstart=np.zeros((len(take), m.nv)))
+
+    engines = [rollout]
+    if native is not None:  # the compiled step alone: where it is faster, the floor
+        engines.append(lambda take, sub: native.run(state[take], ctrl[take], sub))
+    best = np.inf
+    for _ in range(repeats):
+        for engine in engines:
+            t = time.perf_counter()
+            for sub in np.unique(substeps):
+                rows = np.flatnonzero(substeps == sub)
+                for i in range(0, len(rows), batch):
+                    engine(rows[i:i + batch], int(sub))
+            best = min(best, time.perf_counter() - t)
+    return n / best
 
 
 @functools.cache
