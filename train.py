@@ -4,8 +4,10 @@ The whole pipeline: the env check (scripted point and push episodes for every po
 the chosen physics backend), the target localizer (TL) -- accuracy, Figs 6 and 7, the
 pixel-noise test -- the action learner's hyperparameter sweeps (Figs 8A, 8B, 9A, 9B, from
 ``sweeps/*.toml``), the action learner (AL): success rates, Figs 10, 11, 13, 14 -- and the
-action namer (AN: ESN naming, Fig 15) with the SOM (Fig 12). The trained TL, AL agent and AN
-are saved to ``<out>/modules`` (load them with ``grounding_jax.load``).
+action namer (AN: ESN naming, Fig 15) with the SOM (Fig 12); beyond the paper, the free
+family (objects anywhere) and the observer (the saved robot names what other agents and
+scripted movements do). The trained TL, AL agents and AN are saved to ``<out>/modules`` (load
+them with ``grounding_jax.load``).
 
     python train.py                      # quick profile (small grids, few seeds)
     python train.py --profile paper      # the paper's settings (600 epochs, full grids)
@@ -14,6 +16,7 @@ are saved to ``<out>/modules`` (load them with ``grounding_jax.load``).
     python train.py --profile paper --only free-robot   # the free family's robot again, on
                                          # the continuous TL of the run already in --out
     python train.py --profile paper --only beyond       # that TL trained again too
+    python train.py --profile paper --only observer     # the saved robot watches again
 """
 
 from __future__ import annotations
@@ -44,7 +47,9 @@ PROFILES = {
               "xy_seeds": 1, "xy_scenes": 6000, "xy_hidden": 50, "xy_steps": 4000,
               "free_seeds": 2, "free_phase1": 30, "free_phase2": 60, "free_placements": 2,
               "free_eyes_placements": 1, "moving_scenes": 1, "free_an_scenes": 3,
-              "free_an_seeds": 1},
+              "free_an_seeds": 1,
+              # the observer: episodes per other agent watched, scripted ones per family
+              "observer_episodes": 9, "observer_scripted": 9},
     "paper": {"tl_epochs": 600, "tl_seeds": 10,
               "tl_hidden": _toml_grid("fig6_tl_hidden", "hidden"),
               "tl_replication": _toml_grid("fig7_tl_replication", "replication"),
@@ -58,7 +63,7 @@ PROFILES = {
               # 74 -> 89% and 54 -> 79%, touch 64 -> 51% and 26 -> 24%: docs/beyond.md)
               "free_seeds": 8, "free_phase1": 1000, "free_phase2": 1000, "free_placements": 40,
               "free_eyes_placements": 20, "moving_scenes": 16, "free_an_scenes": 45,
-              "free_an_seeds": 5},
+              "free_an_seeds": 5, "observer_episodes": 54, "observer_scripted": 72},
 }
 #: the quick profile's AL sweep schedule (every sweep's; short: the 3-min budget)
 _QUICK_SWEEP_EPISODES = ["phase1_episodes=25", "phase2_episodes=25"]
@@ -74,7 +79,8 @@ AL_SWEEPS = {
 _FREE_ROBOT = ("free_seeds", "free_phase1", "free_phase2", "free_placements",
                "free_eyes_placements", "moving_scenes", "free_an_scenes", "free_an_seeds")
 ONLY = {"free-robot": _FREE_ROBOT,
-        "beyond": ("xy_seeds", "xy_scenes", "xy_hidden", "xy_steps", *_FREE_ROBOT)}
+        "beyond": ("xy_seeds", "xy_scenes", "xy_hidden", "xy_steps", *_FREE_ROBOT),
+        "observer": ("observer_episodes", "observer_scripted")}
 #: settings that may be 0 (an empty phase, no no-tricks run)
 ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2"}
 
@@ -263,7 +269,7 @@ def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agen
     trained.save(out.parent / "modules", modules["tl_params"], modules["tl_hyper"], agent,
                  al_config, modules["net"], modules["esn_config"], env_config,
                  extra={"tl_epochs": st["an_tl_epochs"], "al": "agent 0 of the AL results"},
-                 free_modules=free_modules)
+                 free_modules=free_modules, agents=agents, saved_agent=0)
     print(f"an    naming accuracy train {res['train']['acc_mean']:.3f} test "
           f"{res['test']['acc_mean']:.3f} (random starts {res['test_random']['acc_mean']:.3f});"
           f" SOM purity action {res['fig12']['purity_action']:.2f} position "
@@ -339,6 +345,22 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
     return free, modules
 
 
+def observer(key, out: pathlib.Path, st: dict) -> dict:
+    """The saved robot (``out/../modules``) names what it only watches: the other AL agents'
+    episodes (both families) and scripted movements (``grounding_jax.paper.watching``)."""
+    import grounding_jax as gj
+    from grounding_jax.paper import watching
+
+    res = watching.run(key, out, gj.load(out.parent / "modules"), st["observer_episodes"],
+                       st["observer_scripted"])
+    fams = " ".join(f"{f} {res[f]['acc_median']:.3f} ({res[f]['acc_min']:.3f}-"
+                    f"{res[f]['acc_max']:.3f})" for f in ("paper", "free") if f in res)
+    script = " ".join(f"{f} {r['acc']:.3f}" for f, r in res["scripted"].items())
+    print(f"watch named right, median other agent: {fams}; scripted movements: {script}",
+          flush=True)
+    return res
+
+
 def camera_strip(out: pathlib.Path, key) -> dict:
     """One command performed by the loaded robot at a random placement, as a strip of camera
     frames (``out/camera_strip.png``)."""
@@ -382,12 +404,13 @@ def robot_strips(out: pathlib.Path) -> None:
     write_strips(gj.load(out / "modules"), out)
 
 
-def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) -> int:
+def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_obs) -> int:
     """``--only free-robot``: :func:`beyond_robot` and :func:`camera_strip` again with the keys
     a whole run gives them, on the continuous TL saved in ``out/modules``; ``--only beyond``:
     the continuous TL trained again first (:func:`beyond`). The modules are saved again (the
-    paper's unchanged, the free family's new) and metrics.json's part, metrics.csv and
-    REPORT.md are rewritten, the other parts' results kept."""
+    paper's unchanged, the free family's new); ``--only observer``: :func:`observer` again on
+    the saved modules. metrics.json's part, metrics.csv and REPORT.md are rewritten, the
+    other parts' results kept."""
     import grounding_jax as gj
     from grounding_jax.core._io import library_versions
     from grounding_jax.robot import trained
@@ -421,25 +444,34 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip) ->
         print(f"--only {part}: {modules_dir} holds no continuous TL", file=sys.stderr)
         return 2
     t = time.perf_counter()
-    if part == "beyond":
+    if part == "observer":
+        if robot.n_agents < 2:
+            print(f"--only {part}: {modules_dir} holds no other AL agents to watch (modules "
+                  "saved before the AL agents were saved with them); run the whole profile",
+                  file=sys.stderr)
+            return 2
+        data["observer"] = observer(k_obs, out / "observer", args.settings)
+    elif part == "beyond":
         extra, modules = beyond(k_xy, k_free, out / "beyond", args.settings, args.backend)
         data["beyond"]["tl_xy"], free = extra["tl_xy"], extra["free"]
     else:
         free, modules = beyond_robot(k_free, out / "beyond", args.settings, args.backend,
                                      robot.free.xy_params, robot.free.xy_config)
-    trained.save(modules_dir, robot.tl.params, robot.tl.hyper, robot.al.agent,
-                 robot.al.config, robot.an.net, robot.an.config, robot.env_config,
-                 extra=robot.config.get("extra"), free_modules=modules)
-    strip = camera_strip(out / "beyond", k_strip)
-    data["beyond"]["free"], data["beyond"]["strip"] = free, strip
+    if part != "observer":
+        trained.save(modules_dir, robot.tl.params, robot.tl.hyper, robot.al.agent,
+                     robot.al.config, robot.an.net, robot.an.config, robot.env_config,
+                     extra=robot.config.get("extra"), free_modules=modules,
+                     agents=robot.agents, saved_agent=robot.saved_agent or 0)
+        strip = camera_strip(out / "beyond", k_strip)
+        data["beyond"]["free"], data["beyond"]["strip"] = free, strip
     data["settings"].update({k: args.settings[k] for k in own})
     wall = f"{part.replace('-', '_')}_rerun"
     data["wall_s"][wall] = time.perf_counter() - t
     data["libraries"] = library_versions()
     data["reruns"] = sorted({*data.get("reruns", []), part})
     write_results(out, data)
-    print(f"rewrote the {part} part of {out}: metrics.json, metrics.csv, REPORT.md, "
-          f"modules/ ({data['wall_s'][wall]:.1f} s)")
+    print(f"rewrote the {part} part of {out}: metrics.json, metrics.csv, REPORT.md"
+          f"{'' if part == 'observer' else ', modules/'} ({data['wall_s'][wall]:.1f} s)")
     return 0
 
 
@@ -553,10 +585,10 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
         print(f"rewrote {out / 'REPORT.md'} from {out / 'metrics.json'}")
         return 0
     # the one split (split is prefix-stable: a part added at the end leaves the others' keys)
-    k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip = jax.random.split(
-        jax.random.key(args.seed), 8)
+    k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs = jax.random.split(
+        jax.random.key(args.seed), 9)
     if args.only:
-        return rerun(out, args, k_xy, k_free, k_strip)
+        return rerun(out, args, k_xy, k_free, k_strip, k_obs)
     from grounding_jax.core import compiles
 
     wall = {}
@@ -585,9 +617,13 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
     t = time.perf_counter()
     robot_strips(out)
     wall["strips"] = time.perf_counter() - t
+    t = time.perf_counter()
+    watched = observer(k_obs, out / "observer", args.settings)
+    wall["observer"] = time.perf_counter() - t
     result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
               "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
-              "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "wall_s": wall,
+              "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "observer": watched,
+              "wall_s": wall,
               "version": gj.__version__, "libraries": library_versions()}
     result.update(speed(wall, started, before, tl_compile))
     write_results(out, result)

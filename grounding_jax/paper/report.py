@@ -365,6 +365,59 @@ def _free_report(free: dict | None, strip: dict | None) -> list[str]:
     return lines
 
 
+def _observer_report(obs: dict | None) -> list[str]:
+    lines = ["", "## Beyond the paper: naming what it watches", ""]
+    if not obs:
+        return lines + ["Not in this metrics.json (made before the observer was built)."]
+    lines += [
+        "The paper's AN names what the robot does itself. Here the saved robot names what "
+        "it only watches, by motor resonance (docs/observer.md): for each of its own "
+        "commands (3 actions x 3 slots) it imagines making its own actor's move from every "
+        "watched state, one env step, and picks the command whose imagined joints follow "
+        "the watched ones most closely; its AN then names that command from its own actor's "
+        "hidden layer on the watched states. A watched episode is named right when the "
+        "action word is and the target word names the target (its shape or its colour: the "
+        "observer cannot hear which one the watched robot was told). Watched: the AL agents "
+        f"trained beside it from other seeds ({obs['episodes_per_agent']} episodes each, "
+        f"{obs['steps']} steps, layouts and placements from a key nothing else used), and "
+        "scripted movements that do each action another way (a slow straight path in joint "
+        "space to a pointing, touching or pushing pose; the paper's push: a sweep from "
+        "behind the object).", "",
+        "| watched | episodes | named right (median agent) | agents (min-max) | goal |",
+        "|---|---|---|---|---|"]
+    for fam in ("paper", "free"):
+        if fam in obs:
+            r = obs[fam]
+            n = sum(a["n"] for a in r["agents"])
+            lines.append(f"| {fam} family, {len(r['agents'])} other agents | {n} | "
+                         f"{_pct(r['acc_median'])} | {_pct(r['acc_min'])}-{_pct(r['acc_max'])}"
+                         f" | >= {_pct(obs['goal'])} |")
+    for fam, r in obs["scripted"].items():
+        lines.append(f"| {fam} family, scripted movements | {r['n']} | {_pct(r['acc'])} "
+                     f"(action {_pct(r['action_acc'])}, target {_pct(r['target_acc'])}) | "
+                     "- | - |")
+    if obs.get("other_agent") is not None:
+        ok = "met" if obs["other_agent"] >= obs["goal"] else "missed"
+        lines += ["", f"Other agents, both families together: the median agent "
+                  f"{_pct(obs['other_agent'])} (goal >= {_pct(obs['goal'])}: {ok})."]
+    names = ("point", "touch", "push")
+    lines += ["", "Where it confuses (rows: the action done; columns: the action named; "
+              "summed over the watched agents):", "",
+              "| watched | " + " | ".join(f"{a} named {b}" for a in names for b in names
+                                          if a != b) + " |",
+              "|---|" + "---|" * 6]
+    rows = [(f"{fam} family, other agents", obs[fam]["confusion"]) for fam in ("paper", "free")
+            if fam in obs]
+    rows += [(f"{fam} family, scripted", r["confusion"]) for fam, r in obs["scripted"].items()]
+    for label, m in rows:
+        lines.append(f"| {label} | " + " | ".join(str(m[i][j]) for i in range(3)
+                                                    for j in range(3) if i != j) + " |")
+    lines += ["", "![observer](observer/observer.png)", "",
+              "Not done: the camera route (naming from frames instead of joints; "
+              "`observer.frames` is null)." if obs.get("frames") is None else ""]
+    return lines
+
+
 def _sweeps_report(sweeps: dict | None) -> list[str]:
     if not sweeps:
         return ["", "## Action learner sweeps (Figs 8, 9)", "", "Not in this metrics.json "
@@ -526,6 +579,8 @@ def report(result: dict, strips: dict[str, str] | None = None) -> str:
            else "every success goal met") + ") |",
         "| AL sweeps, Figs 8A, 8B, 9A, 9B | done: below |",
         "| AN action namer + SOM, Figs 12, 15 | done: below |",
+        "| observer: naming what it watches (beyond the paper) | "
+        + ("done: below |" if result.get("observer") else "not in this run |"),
         "| trained modules | saved to `modules/`; `grounding_jax.load` (docs/robot.md) |",
         "", "## Target localizer", "",
         "| result | paper | ours |", "|---|---|---|",
@@ -569,6 +624,7 @@ def report(result: dict, strips: dict[str, str] | None = None) -> str:
         *_al_report(al),
         *_an_report(an),
         *_beyond_report(result.get("beyond")),
+        *_observer_report(result.get("observer")),
         "", "## Scripted episodes (env check)", "",
         "| action | position | final reward | point L1 | target moved (cm) | others moved (cm) |",
         "|---|---|---|---|---|---|",

@@ -40,8 +40,9 @@ import numpy as np
 from grounding_jax.core import _guard
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.learn import al, cacla, esn, learners, tl, tl_xy
+from grounding_jax.robot import observer
 from grounding_jax.sim import scene, tasks, tl_data
-from grounding_jax.sim.env import DEFAULT_PARAMS, EnvConfig, EnvParams, make_task
+from grounding_jax.sim.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, State, make_task
 
 KIND = "modules"
 
@@ -69,11 +70,16 @@ class TrainedTL:
         x, mask = self._inputs(bitmap, symbols)
         return tl.apply(self.params, x, mask)[0]
 
+    def outputs(self, bitmap: jax.Array, symbols: jax.Array) -> jax.Array:
+        """The three position outputs ``[..., 3]`` (in (0, 1); the position is their
+        argmax)."""
+        x, mask = self._inputs(bitmap, symbols)
+        return tl.apply(self.params, x, mask)[1]
+
     def position(self, bitmap: jax.Array, symbols: jax.Array) -> jax.Array:
         """Position index (0 left, 1 middle, 2 right) for bitmaps ``[..., 1200]`` and symbol
         units ``[..., 15]`` (see :func:`tl_data.symbol_units`)."""
-        x, mask = self._inputs(bitmap, symbols)
-        return jnp.argmax(tl.apply(self.params, x, mask)[1], axis=-1)
+        return jnp.argmax(self.outputs(bitmap, symbols), axis=-1)
 
     def localize(self, layout: int, word: str) -> int:
         """Position of the object ``word`` ("box", "red", ...) names in scene ``layout``, from
@@ -141,7 +147,7 @@ class TrainedFree:
     @property
     def n_agents(self) -> int:
         """How many trained agents ``agents`` holds (0 when none were saved)."""
-        return 0 if self.agents is None else int(jax.tree.leaves(self.agents)[0].shape[0])
+        return _count(self.agents)
 
     def _inputs(self, rgb: np.ndarray, layout: int, word: str) -> tuple[jax.Array, jax.Array]:
         w = tl_data.word_index(word)
@@ -161,7 +167,9 @@ class TrainedFree:
 @dataclasses.dataclass(frozen=True)
 class Robot:
     """The three trained modules together, as :func:`load` returns them (``free``: the free
-    family's modules when the checkpoint has them, else None)."""
+    family's modules when the checkpoint has them, else None; ``agents``: every AL agent
+    trained beside the robot's own, stacked, when saved -- ``saved_agent`` is the index of
+    ``al``'s among them; see :meth:`with_agent`)."""
 
     tl: TrainedTL
     al: TrainedAL
@@ -169,9 +177,29 @@ class Robot:
     env_config: EnvConfig
     config: dict[str, Any]
     free: TrainedFree | None = None
+    agents: cacla.Agent | None = None
+    saved_agent: int | None = None
     # perform's compiled episode, one per step count (filled on first use)
     _performers: dict[Any, Callable] = dataclasses.field(
         default_factory=dict, init=False, repr=False, compare=False)
+
+    @property
+    def n_agents(self) -> int:
+        """How many paper-family AL agents ``agents`` holds (0 when none were saved)."""
+        return _count(self.agents)
+
+    def with_agent(self, i: int) -> Robot:
+        """This robot acting with the paper family's trained AL agent ``i`` (of ``agents``:
+        all that train.py trained, from different seeds; by default it acts with
+        ``saved_agent``). The TL and the AN stay its own; the compiled episodes are shared.
+
+        Raises:
+            ValueError: no agents saved, or ``i`` out of range.
+        """
+        agent = jax.tree.map(lambda x: x[_agent_index(i, self.n_agents, "")], self.agents)
+        robot = dataclasses.replace(self, al=TrainedAL(agent, self.al.config))
+        robot._performers.update(self._performers)
+        return robot
 
     def with_free_agent(self, i: int) -> Robot:
         """This robot acting with the free family's trained agent ``i`` (of
@@ -182,12 +210,7 @@ class Robot:
             ValueError: no free-family agents saved, or ``i`` out of range.
         """
         n = 0 if self.free is None else self.free.n_agents
-        if n == 0:
-            raise ValueError("i: these modules hold no saved free-family agents (train.py "
-                             "saves them beside the robot's own)")
-        if isinstance(i, bool) or not isinstance(i, int | np.integer) or not 0 <= int(i) < n:
-            raise ValueError(f"i: agent index {i!r} out of range; accepted: 0..{n - 1}")
-        agent = jax.tree.map(lambda x: x[int(i)], self.free.agents)
+        agent = jax.tree.map(lambda x: x[_agent_index(i, n, "free-family ")], self.free.agents)
         free = dataclasses.replace(self.free, al=TrainedAL(agent, self.free.al.config))
         robot = dataclasses.replace(self, free=free)
         robot._performers.update(self._performers)
@@ -283,6 +306,167 @@ class Robot:
                 "final_reward": float(traj.reward[-1]), "trajectory": traj, "named": named}
 
 
+    # ----------------------------------------------------------------------- watching
+    def _watch_family(self, states) -> tuple[bool, Any]:
+        """(free family?, the watched states checked) for a trajectory."""
+        if isinstance(states, dict) and "trajectory" in states:
+            states = states["trajectory"]
+        free = isinstance(states, State) and states.task.placement is not None
+        if free and self.free is None:
+            raise ValueError("trajectory: an episode with objects placed anywhere, and these "
+                             "modules hold no free-family robot to watch it with; accepted: "
+                             "episodes on the paper's slots")
+        size = (self.free.env_config if free else self.env_config).tasks.obs_size
+        return free, observer.check_states(states, size)
+
+    def _resonator(self, free: bool) -> Callable:
+        """The jitted watching of a batch of episodes of a family: the resonance, the word for
+        the chosen slot and the AN's outputs (the modules' arrays are arguments)."""
+        if ("watch", free) in self._performers:
+            return self._performers[("watch", free)]
+        cfg = self.free.env_config if free else self.env_config
+        env = Env(cfg)
+        lrn = learners.for_config((self.free.al if free else self.al).config)
+        resonance = observer.make_resonance(env, lrn)
+
+        def command(agent, states, params):
+            err = resonance(agent, states, params)
+            a, p = observer.best(observer.score(err))
+            return err, a, p, observer.hidden_under(env, lrn, agent, states, a, p)
+
+        if free:
+            xy_config, has_an = self.free.xy_config, self.free.an is not None
+            symbols = jnp.asarray(tl_xy.SYMBOLS)
+
+            def run(agent, xy_params, net, states, params, bitmap):
+                err, a, p, hidden = command(agent, states, params)
+                words = symbols[states.task.layout[0]]
+                bitmaps = jnp.broadcast_to(bitmap, (words.shape[0], bitmap.shape[0]))
+                estimates = tl_xy.localize(xy_params, bitmaps, words, xy_config)
+                w = observer.free_word(estimates, states.task.placement[0, p, :2])
+                out = (TrainedAN(net).outputs(hidden, tl_xy.hidden(
+                    xy_params, bitmap, words[w], xy_config))[-1] if has_an else jnp.zeros(()))
+                return err, a, p, w, out
+
+            fn = jax.vmap(run, in_axes=(None, None, None, 0, None, 0))
+        else:
+            bitmaps = jnp.asarray(tl_data.cached_bitmaps(), jnp.float32)
+            symbols = jnp.asarray(tl_xy.SYMBOLS)
+            hyper = self.tl.hyper
+
+            def run(agent, tl_params, net, states, params):
+                err, a, p, hidden = command(agent, states, params)
+                layout = states.task.layout[0]
+                trained_tl = TrainedTL(tl_params, hyper)
+                words = symbols[layout]
+                probs = trained_tl.outputs(
+                    jnp.broadcast_to(bitmaps[layout], (words.shape[0], bitmaps.shape[1])), words)
+                w = observer.paper_word(probs, p)
+                tl_h = trained_tl.hidden_layer(bitmaps[layout], words[w])
+                return err, a, p, w, TrainedAN(net).outputs(hidden, tl_h)[-1]
+
+            fn = jax.vmap(run, in_axes=(None, None, None, 0, None))
+        self._performers[("watch", free)] = jax.jit(fn)
+        return self._performers[("watch", free)]
+
+    def resonance(self, trajectory: Any, params: EnvParams | None = None) -> dict | list[dict]:
+        """Which of its own commands explains a watched episode best (motor resonance, see
+        :mod:`grounding_jax.robot.observer`), and how it names it.
+
+        Args:
+            trajectory: env states after each step, stacked ``[T, ...]`` (``T >= 2``) -- as
+                :meth:`perform` returns in ``"trajectory"`` (its output dict is accepted too),
+                or any env trajectory of another robot -- or a batch ``[N, T, ...]``. An
+                episode with a placement is watched with the free family's modules (and its
+                scene seen through the eye camera).
+            params: the observer's env parameters for its imagined moves (default: those its
+                actor was trained with).
+
+        Returns:
+            ``action`` and ``position`` (the command it resonates with), ``errors`` (``[2, 3
+            actions, 3 slots]``: the joint and the hand mismatch of each command), ``score``
+            (``[3, 3]``, the resonance score: smaller explains better), ``named`` (action
+            word, target word; None for a free-family episode when the modules hold no
+            free-family namer), ``word`` (the target word it chose); a list of these for a
+            batch.
+
+        Raises:
+            ValueError: not a trajectory of env states, of the wrong observation size, fewer
+                than 2 steps, or an episode with a placement for modules without the free
+                family.
+        """
+        free, states = self._watch_family(trajectory)
+        if params is not None:
+            params.validate()
+        batched = np.ndim(states.obs) == 3
+        many = states if batched else jax.tree.map(lambda x: x[None], states)
+        if free:
+            from grounding_jax.sim import vision
+
+            params = self.free.params if params is None else params
+            layouts = np.asarray(many.task.layout[:, 0])
+            placed = np.asarray(many.task.placement[:, 0])
+            renderer = vision.eye_renderer()
+            bitmaps = np.stack([tl_xy.bitmap(renderer.render(int(lay), pl))
+                                for lay, pl in zip(layouts, placed, strict=True)])
+            out = self._resonator(True)(self.free.al.agent, self.free.xy_params,
+                                        self.free.an.net if self.free.an else None, many,
+                                        params, jnp.asarray(bitmaps, jnp.float32))
+            an_config = self.free.an.config if self.free.an else None
+            names = self.free.env_config.tasks.action_names
+        else:
+            params = DEFAULT_PARAMS if params is None else params
+            out = self._resonator(False)(self.al.agent, self.tl.params, self.an.net, many,
+                                         params)
+            an_config, names = self.an.config, self.env_config.tasks.action_names
+        err, a, p, w, outputs = jax.device_get(out)
+        rows = [{"action": names[int(a[i])], "position": scene.POSITIONS[int(p[i])],
+                 "errors": err[i], "score": np.asarray(observer.score(err[i])),
+                 "word": tl_data.TARGET_WORDS[int(w[i])],
+                 "named": _words(outputs[i], an_config) if an_config else None}
+                for i in range(len(a))]
+        return rows if batched else rows[0]
+
+    def watch(self, trajectory: Any, params: EnvParams | None = None
+              ) -> tuple[str, str] | None | list:
+        """Name an action it only watched: (action word, target word), as :meth:`perform`'s
+        ``named`` -- the command it resonates with, named by its AN (see :meth:`resonance`;
+        None for a free-family episode when the modules hold no free-family namer). A batch
+        ``[N, T, ...]`` gives a list.
+
+        Raises:
+            ValueError: see :meth:`resonance`.
+        """
+        out = self.resonance(trajectory, params)
+        return [r["named"] for r in out] if isinstance(out, list) else out["named"]
+
+
+def _count(agents: Any) -> int:
+    return 0 if agents is None else int(jax.tree.leaves(agents)[0].shape[0])
+
+
+def _agent_index(i: Any, n: int, family: str) -> int:
+    """``i`` checked as an index among ``n`` saved agents (ValueError naming ``i``)."""
+    if n == 0:
+        raise ValueError(f"i: these modules hold no saved {family}agents (train.py saves them "
+                         "beside the robot's own)")
+    if isinstance(i, bool) or not isinstance(i, int | np.integer) or not 0 <= int(i) < n:
+        raise ValueError(f"i: agent index {i!r} out of range; accepted: 0..{n - 1}")
+    return int(i)
+
+
+def _check_agents(entry: Any, field: str) -> None:
+    n, i = entry["n_agents"], entry["saved_agent"]
+    if not (type(n) is int and n >= 1 and type(i) is int and 0 <= i < n):
+        raise ValueError(f"{field}: n_agents must be an integer >= 1 and saved_agent one of "
+                         f"0..n_agents - 1, got {n!r} and {i!r}")
+
+
+def _stacked_like(config: cacla.CaclaConfig, n: int, k: jax.Array):
+    return jax.eval_shape(lambda: jax.vmap(lambda kk: cacla.init(kk, config))(
+        jax.random.split(k, n)))
+
+
 def _params_json(params: EnvParams) -> dict[str, float | int]:
     """Env parameters as JSON numbers (for config.json)."""
     return {f.name: np.asarray(getattr(params, f.name)).item()
@@ -314,10 +498,9 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
             if "an" in f:
                 esn.ESNConfig(**f["an"])
             if "n_agents" in f:
-                n, i = f["n_agents"], f["saved_agent"]
-                if not (type(n) is int and n >= 1 and type(i) is int and 0 <= i < n):
-                    raise ValueError(f"free: n_agents must be an integer >= 1 and saved_agent "
-                                     f"one of 0..n_agents - 1, got {n!r} and {i!r}")
+                _check_agents(f, "free")
+        if "al_agents" in config:
+            _check_agents(config["al_agents"], "al_agents")
         t = config["tl"]
         tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
         # input scales: 1 (the paper's) in configs written before they existed
@@ -342,11 +525,11 @@ def _like(config: dict):
             "xy": jax.eval_shape(lambda: tl_xy.init(k, tl_xy.XYConfig(**f["xy"]))),
             "al": jax.eval_shape(lambda: cacla.init(k, cacla.CaclaConfig(**f["al"])))}
         if "n_agents" in f:
-            like["free"]["agents"] = jax.eval_shape(lambda: jax.vmap(
-                lambda kk: cacla.init(kk, cacla.CaclaConfig(**f["al"])))(
-                    jax.random.split(k, f["n_agents"])))
+            like["free"]["agents"] = _stacked_like(cacla.CaclaConfig(**f["al"]), f["n_agents"], k)
         if "an" in f:
             like["free"]["an"] = _esn_like(esn.ESNConfig(**f["an"]))
+    if "al_agents" in config:
+        like["al_agents"] = _stacked_like(al_cfg, config["al_agents"]["n_agents"], k)
     return like | {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
                    "al": jax.eval_shape(lambda: cacla.init(k, al_cfg)),
                    "an": _esn_like(esn_cfg)}
@@ -361,7 +544,8 @@ def _esn_like(cfg: esn.ESNConfig):
 def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLHyper,
          agent: cacla.Agent, al_config: cacla.CaclaConfig, net: esn.ESN,
          esn_config: esn.ESNConfig, env_config: EnvConfig, extra: dict | None = None,
-         free_modules: dict | None = None) -> None:
+         free_modules: dict | None = None, agents: cacla.Agent | None = None,
+         saved_agent: int = 0) -> None:
     """Save the three trained modules (replacing an earlier save there only once the new one
     is complete).
 
@@ -382,6 +566,9 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
             ``EnvParams()``), optionally ``"agents"`` (every agent trained, stacked) with
             ``"saved_agent"`` (the index of ``"agent"`` among them) and, when a namer was
             trained for it, ``"net"`` and ``"esn_config"``.
+        agents: every paper-family AL agent trained beside ``agent`` (stacked; optional:
+            the robot can then watch, or act as, another of them).
+        saved_agent: the index of ``agent`` among ``agents``.
     """
     directory = pathlib.Path(directory)
     config = {
@@ -393,6 +580,10 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         "al": dataclasses.asdict(al_config), "an": dataclasses.asdict(esn_config),
         "env": dataclasses.asdict(env_config), "extra": extra or {}}
     tree = {"tl": tl_params, "al": agent, "an": net}
+    if agents is not None:
+        config["al_agents"] = {"n_agents": _count(agents), "saved_agent": int(saved_agent)}
+        _check_agents(config["al_agents"], "saved_agent")
+        tree["al_agents"] = agents
     if free_modules is not None:
         config["free"] = {"xy": dataclasses.asdict(free_modules["xy_config"]),
                           "al": dataclasses.asdict(free_modules["al_config"]),
@@ -460,7 +651,9 @@ def load(directory: str | pathlib.Path) -> Robot:
             agents=tree["free"].get("agents"), saved_agent=f.get("saved_agent"))
     return Robot(tl=TrainedTL(tree["tl"], tl_hp),
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
-                 env_config=env_cfg, config=config, free=modules_free)
+                 env_config=env_cfg, config=config, free=modules_free,
+                 agents=tree.get("al_agents"),
+                 saved_agent=config.get("al_agents", {}).get("saved_agent"))
 
 
 def seal(directory: str | pathlib.Path) -> None:

@@ -1,0 +1,251 @@
+"""Beyond the paper: the robot names actions it only watches (``Robot.watch``; the method is
+motor resonance, :mod:`grounding_jax.robot.observer`).
+
+Watched episodes come from robots the observer is not: the AL agents trained beside its own
+from other seeds (paper family: random layouts; free family: placements drawn from a key
+nothing else uses), and scripted arm movements that do each action another way (a slow
+straight path in joint space to a pointing, touching or pushing pose; for the paper's push,
+the sweep from behind the object that the env check uses). A watched episode is named right
+when both words are: the action, and a word that names the target (its shape or its colour:
+the observer cannot hear which one the watched robot was told).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import pathlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from grounding_jax.core._io import atomic_write_text, pyplot, write_figure
+from grounding_jax.learn import al
+from grounding_jax.paper import al_eval
+from grounding_jax.robot import observer
+from grounding_jax.sim import placement as free_placement
+from grounding_jax.sim import scene, scripted, tl_data
+from grounding_jax.sim.env import Env, EnvConfig, EnvParams, Task
+
+#: the goal: action and target words right on another agent's episodes (joint route)
+GOAL = 0.95
+#: RL steps of a watched episode (the env's episode length: what an episode lasts)
+STEPS = 75
+#: steps a scripted movement takes to reach its pose (a learned actor takes ~10-20)
+SCRIPT_APPROACH = 35
+
+
+def paper_tasks(key: jax.Array, n: int) -> Task:
+    """``n`` paper-family tasks: actions and slots in turn, layouts drawn from ``key``."""
+    layout = np.asarray(jax.random.randint(key, (n,), 0, len(scene.LAYOUTS)))
+    i = np.arange(n)
+    return jax.device_put(Task(action=(i % 3).astype(np.int32),
+                               position=(i // 3 % 3).astype(np.int32),
+                               layout=layout.astype(np.int32)))
+
+
+@functools.lru_cache(maxsize=8)
+def _runner(config: EnvConfig, steps: int):
+    """Jitted greedy episodes of one agent over a batch of tasks: (states [N, T], success)."""
+    env = Env(config)
+    evaluate = al.make_eval(env, steps)
+
+    def one(agent, key, task, params):
+        _, traj, _ = evaluate(agent, key, task, params)
+        return traj, al_eval.episode_success(traj, task, task_set=env.tasks)["success"]
+
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, None)))
+
+
+def agent_episodes(agent, config: EnvConfig, key: jax.Array, tasks: Task, params: EnvParams,
+                   steps: int = STEPS):
+    """Greedy episodes of ``agent`` on a batch of tasks: (states ``[N, steps]``, success
+    ``[N]``)."""
+    keys = jax.random.split(key, int(tasks.action.shape[0]))
+    return _runner(config, steps)(agent, keys, tasks, params)
+
+
+def _pose(action: jax.Array, xy: jax.Array) -> jax.Array:
+    """The scripted movement's final pose (radians) for an action at table point ``xy``."""
+    return jnp.stack([free_placement.pointing_pose(xy), free_placement.touch_pose(xy),
+                      free_placement.push_pose(xy)])[action]
+
+
+@functools.lru_cache(maxsize=8)
+def _script_runner(config: EnvConfig, steps: int):
+    """Jitted scripted episodes over a batch of tasks: (states [N, T], success)."""
+    env = Env(config)
+    home = jnp.radians(jnp.asarray(scene.HOME_POSE_DEG, jnp.float32))
+    sweeps = jnp.asarray(np.stack([scripted.push_waypoints(p, steps) for p in range(3)]),
+                         jnp.float32)
+    pointing = jnp.asarray(scene.pointing_configs(), jnp.float32)
+
+    def one(key, task: Task, params):
+        placed = (jnp.asarray(free_placement.fixed()) if task.placement is None
+                  else task.placement)
+        pose = _pose(task.action, placed[task.position, :2])
+        if task.placement is None:  # the paper's point: its stored pointing pose
+            pose = jnp.where(task.action == 0, pointing[task.position], pose)
+        frac = jnp.minimum((jnp.arange(steps) + 1.0) / SCRIPT_APPROACH, 1.0)[:, None]
+        path = home + frac * (pose - home)
+        if task.placement is None:  # the paper's push: the sweep from behind the object
+            path = jnp.where(task.action == 2, sweeps[task.position], path)
+
+        first = env.reset(key, task, params)
+
+        def body(state, _):
+            nxt = env.step(state, scripted.tracking_action(path, state.step, state.obs), params)
+            return nxt, nxt
+
+        _, traj = jax.lax.scan(body, first, None, length=steps)
+        return traj, al_eval.episode_success(traj, task, task_set=env.tasks)["success"]
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+
+
+def scripted_episodes(config: EnvConfig, key: jax.Array, tasks: Task, params: EnvParams,
+                      steps: int = STEPS):
+    """Scripted episodes (see module doc) on a batch of tasks: (states, success)."""
+    keys = jax.random.split(key, int(tasks.action.shape[0]))
+    return _script_runner(config, steps)(keys, tasks, params)
+
+
+def judge(robot, states, tasks: Task, success) -> dict:
+    """Watch a batch of episodes and score the naming.
+
+    Returns:
+        ``acc`` (both words right), ``action_acc``, ``target_acc``, ``command_acc`` (the
+        resonance's action and slot right), ``acc_succeeded`` (over the episodes the watched
+        robot did right), ``confusion`` (``[true action][named action]`` counts), ``n``.
+    """
+    rows = robot.resonance(states)
+    names = tuple(robot.env_config.tasks.action_names)
+    action, slot = np.asarray(tasks.action), np.asarray(tasks.position)
+    layout, ok_run = np.asarray(tasks.layout), np.asarray(success) > 0
+    named_a = np.array([names.index(r["named"][0]) if r["named"] else -1 for r in rows])
+    named_w = np.array([tl_data.word_index(r["named"][1]) if r["named"] else -1
+                        for r in rows])
+    cmd_a = np.array([names.index(r["action"]) for r in rows])
+    cmd_p = np.array([scene.POSITIONS.index(r["position"]) for r in rows])
+    a_ok = named_a == action
+    t_ok = np.array([w >= 0 and observer.names_target(lay, w, s)
+                     for w, lay, s in zip(named_w, layout, slot, strict=True)])
+    both = a_ok & t_ok
+    confusion = np.zeros((len(names), len(names)), int)
+    for t, n in zip(action, named_a, strict=True):
+        if n >= 0:
+            confusion[t, n] += 1
+    return {"n": len(rows), "acc": float(both.mean()), "action_acc": float(a_ok.mean()),
+            "target_acc": float(t_ok.mean()),
+            "command_acc": float(((cmd_a == action) & (cmd_p == slot)).mean()),
+            "acc_succeeded": float(both[ok_run].mean()) if ok_run.any() else None,
+            "watched_success": float(ok_run.mean()), "confusion": confusion.tolist()}
+
+
+def _pool(parts: list[dict]) -> dict:
+    """Per-agent results pooled: the median agent, the spread, the summed confusion."""
+    accs = [p["acc"] for p in parts]
+    return {"acc_median": float(np.median(accs)), "acc_min": float(np.min(accs)),
+            "acc_max": float(np.max(accs)), "acc_per_agent": accs,
+            "acc_pooled": float(np.average(accs, weights=[p["n"] for p in parts])),
+            "confusion": np.sum([p["confusion"] for p in parts], axis=0).tolist(),
+            "agents": parts}
+
+
+def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int) -> dict:
+    """Watch other agents and scripted movements, in both families when the robot has them.
+
+    Args:
+        key: one PRNG key, split once here.
+        out: output folder (``observer.json``, ``observer.png``).
+        robot: the observer (:class:`grounding_jax.robot.trained.Robot`), with ``agents``
+            (and ``free.agents``) saved: the watched agents are all but its own.
+        episodes: watched episodes per other agent.
+        scripted_per_family: scripted episodes per family.
+
+    Returns:
+        ``other_agent`` (the median watched agent's accuracy, both families' agents
+        together), ``frames`` (None: the camera route is not built), ``paper``, ``free``
+        and ``scripted`` (see :func:`judge`), ``goal``.
+    """
+    out = pathlib.Path(out)
+    k_paper, k_free, k_script = jax.random.split(key, 3)
+    res: dict[str, Any] = {"episodes_per_agent": episodes, "steps": STEPS, "goal": GOAL,
+                           "frames": None,
+                           "frames_note": "the camera route is not built"}
+    parts = []
+    if robot.n_agents > 1:
+        per = []
+        for i, k in zip(range(robot.n_agents), jax.random.split(k_paper, robot.n_agents),
+                        strict=True):
+            if i == robot.saved_agent:
+                continue
+            k_task, k_run = jax.random.split(k)
+            tasks = paper_tasks(k_task, episodes)
+            states, ok = agent_episodes(robot.with_agent(i).al.agent, robot.env_config, k_run,
+                                        tasks, EnvParams())
+            per.append({"agent": i, **judge(robot, states, tasks, ok)})
+        res["paper"] = _pool(per)
+        parts += per
+    if robot.free is not None and robot.free.n_agents > 1:
+        f, per = robot.free, []
+        placements = -(-episodes // 9)
+        for i, k in zip(range(f.n_agents), jax.random.split(k_free, f.n_agents), strict=True):
+            if i == f.saved_agent:
+                continue
+            k_task, k_run = jax.random.split(k)
+            tasks = jax.tree.map(lambda x: x[:episodes],
+                                 al_eval.free_tasks(k_task, placements))
+            agent = jax.tree.map(lambda x, i=i: x[i], f.agents)
+            states, ok = agent_episodes(agent, f.env_config, k_run, tasks, f.params)
+            per.append({"agent": i, **judge(robot, states, tasks, ok)})
+        res["free"] = _pool(per)
+        parts += per
+    res["other_agent"] = (float(np.median([p["acc"] for p in parts])) if parts else None)
+    res["scripted"] = {}
+    k_sp, k_sf, k_rp, k_rf = jax.random.split(k_script, 4)
+    res["scripted"]["paper"] = judge(robot, *_scripted(robot.env_config, k_sp, k_rp,
+                                                        scripted_per_family, None))
+    if robot.free is not None:
+        res["scripted"]["free"] = judge(robot, *_scripted(robot.free.env_config, k_sf, k_rf,
+                                                           scripted_per_family, robot.free))
+    figure(res, out, tuple(robot.env_config.tasks.action_names))
+    atomic_write_text(out / "observer.json", json.dumps(res, indent=1) + "\n")
+    return res
+
+
+def _scripted(config: EnvConfig, k_task: jax.Array, k_run: jax.Array, n: int, free):
+    if free is None:
+        tasks, params = paper_tasks(k_task, n), EnvParams()
+    else:
+        tasks = jax.tree.map(lambda x: x[:n], al_eval.free_tasks(k_task, -(-n // 9)))
+        params = free.params
+    states, ok = scripted_episodes(config, k_run, tasks, params)
+    return states, tasks, ok
+
+
+def figure(res: dict, out: pathlib.Path, names: tuple[str, ...]) -> None:
+    """The confusion of true and named actions, per source of watched episodes."""
+    plt = pyplot()
+    panels = [(f"{fam} family, other agents", res[fam]["confusion"])
+              for fam in ("paper", "free") if fam in res]
+    panels += [(f"{fam} family, scripted", r["confusion"])
+               for fam, r in res["scripted"].items()]
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.4 * len(panels), 3.4), squeeze=False)
+    for ax, (title, m) in zip(axes[0], panels, strict=True):
+        m = np.asarray(m)
+        ax.imshow(m, cmap="Blues")
+        for i in range(m.shape[0]):
+            for j in range(m.shape[1]):
+                ax.text(j, i, str(m[i, j]), ha="center", va="center", fontsize=9)
+        ax.set_xticks(range(len(names)), names)
+        ax.set_yticks(range(len(names)), names)
+        ax.set_xlabel("named")
+        ax.set_ylabel("done")
+        ax.set_title(title, fontsize=9)
+    fig.suptitle("The observer naming watched actions (motor resonance, joint route)")
+    fig.tight_layout()
+    write_figure(out, "observer", {k: v for k, v in res.items() if k != "agents"}, fig)
+
