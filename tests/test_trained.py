@@ -120,3 +120,29 @@ def test_perform_compiles_once_per_step_count_and_answers_as_the_modules_do(tmp_
     assert out["named"] == robot.an.name(hidden, tl_h)
     with pytest.raises(ValueError, match="steps"):
         robot.perform("push", "red", layout=3, steps=0)
+
+
+def test_the_paper_familys_agents_are_saved_beside_the_robots_own(tmp_path, modules):
+    agents = jax.vmap(cacla.init)(jax.random.split(jax.random.key(4), 3))
+    own = jax.tree.map(lambda x: x[1], agents)
+    _save(tmp_path / "m", {**modules, "agent": own}, agents=agents, saved_agent=1)
+    robot = gj.load(tmp_path / "m")
+    assert robot.n_agents == 3 and robot.saved_agent == 1
+    np.testing.assert_array_equal(robot.al.agent.actor.w1, agents.actor.w1[1])
+    other = robot.with_agent(2)
+    np.testing.assert_array_equal(other.al.agent.actor.w1, agents.actor.w1[2])
+    # the TL and the AN stay the robot's own; the compiled episodes are shared
+    assert other.tl is robot.tl and other.an is robot.an
+    assert other._performers is not robot._performers
+    for bad in (3, -1, 1.0, True):
+        with pytest.raises(ValueError, match=r"i: .*0\.\.2"):
+            robot.with_agent(bad)
+    # modules saved without them: none to choose from, said so
+    _save(tmp_path / "plain", modules)
+    plain = gj.load(tmp_path / "plain")
+    assert plain.n_agents == 0 and plain.saved_agent is None
+    with pytest.raises(ValueError, match="no saved agents"):
+        plain.with_agent(0)
+    with pytest.raises(ValueError, match="saved_agent"):
+        _save(tmp_path / "bad", modules, agents=agents, saved_agent=3)
+    assert not (tmp_path / "bad").exists()

@@ -67,6 +67,13 @@ def table(metrics: dict, perform_check: dict | None = None) -> str:
         f"| Beyond: objects anywhere, median of {free['seeds']} agents on held-out "
         f"placements, point / touch / push | – | {_trio(free['final']['by_action'])} |",
     ]
+    obs = metrics.get("observer")
+    if obs and obs.get("other_agent") is not None:
+        n = sum(len(obs[f]["agents"]) for f in ("paper", "free") if f in obs)
+        rows.append(
+            f"| Beyond: names what it only watches (another agent's episodes, motor "
+            f"resonance from the joints), median of {n} other agents | proposed | "
+            f"{_pct(obs['other_agent'])} |")
     if perform_check is not None:
         p = perform_check
         rows.append(

@@ -6,6 +6,8 @@
 
 from __future__ import annotations
 
+import statistics
+
 #: What the paper reports, in one place (the report's "paper" column).
 PAPER = {
     "tl_test_acc": "~95%", "tl_train_acc": "100%", "tl_test_rmse": "0.136",
@@ -373,29 +375,37 @@ def _observer_report(obs: dict | None) -> list[str]:
         "The paper's AN names what the robot does itself. Here the saved robot names what "
         "it only watches, by motor resonance (docs/observer.md): for each of its own "
         "commands (3 actions x 3 slots) it imagines making its own actor's move from every "
-        "watched state, one env step, and picks the command whose imagined joints follow "
-        "the watched ones most closely; its AN then names that command from its own actor's "
-        "hidden layer on the watched states. A watched episode is named right when the "
+        "watched state, one env step, and picks the command whose imagined steps follow "
+        "the watched ones most closely, in the joints and in the hand (the smallest product "
+        "of the two mean squared mismatches); its AN then names that command from its own "
+        "actor's hidden layer on the watched states and its TL's hidden layer for a word "
+        "its TL places in that slot. A watched episode is named right when the "
         "action word is and the target word names the target (its shape or its colour: the "
         "observer cannot hear which one the watched robot was told). Watched: the AL agents "
         f"trained beside it from other seeds ({obs['episodes_per_agent']} episodes each, "
         f"{obs['steps']} steps, layouts and placements from a key nothing else used), and "
         "scripted movements that do each action another way (a slow straight path in joint "
         "space to a pointing, touching or pushing pose; the paper's push: a sweep from "
-        "behind the object).", "",
-        "| watched | episodes | named right (median agent) | agents (min-max) | goal |",
-        "|---|---|---|---|---|"]
+        "behind the object). The watched episodes the watched robot did right (by the "
+        "success criteria) are counted apart: where it failed, what it did may truly look "
+        "like another action.", "",
+        "| watched | episodes | named right (median agent) | agents (min-max) | "
+        "of the episodes it did right | goal |",
+        "|---|---|---|---|---|---|"]
     for fam in ("paper", "free"):
         if fam in obs:
             r = obs[fam]
             n = sum(a["n"] for a in r["agents"])
+            done = [a["acc_succeeded"] for a in r["agents"] if a["acc_succeeded"] is not None]
             lines.append(f"| {fam} family, {len(r['agents'])} other agents | {n} | "
                          f"{_pct(r['acc_median'])} | {_pct(r['acc_min'])}-{_pct(r['acc_max'])}"
+                         f" | {_pct(statistics.median(done)) if done else '-'} (median agent)"
                          f" | >= {_pct(obs['goal'])} |")
     for fam, r in obs["scripted"].items():
         lines.append(f"| {fam} family, scripted movements | {r['n']} | {_pct(r['acc'])} "
-                     f"(action {_pct(r['action_acc'])}, target {_pct(r['target_acc'])}) | "
-                     "- | - |")
+                     f"(action {_pct(r['action_acc'])}, target {_pct(r['target_acc'])}) | - | "
+                     + (_pct(r["acc_succeeded"]) if r["acc_succeeded"] is not None else "-")
+                     + " | - |")
     if obs.get("other_agent") is not None:
         ok = "met" if obs["other_agent"] >= obs["goal"] else "missed"
         lines += ["", f"Other agents, both families together: the median agent "

@@ -46,6 +46,15 @@ def paper_tasks(key: jax.Array, n: int) -> Task:
                                layout=layout.astype(np.int32)))
 
 
+def free_tasks(key: jax.Array, n: int) -> Task:
+    """``n`` free-family tasks: random placements (and layouts) from ``key``, each placement's
+    9 commands (actions and slots in turn) before the next placement's."""
+    placements = -(-n // 9)
+    tasks = al_eval.free_tasks(key, placements)  # action-major: [3 actions, 3 slots, P]
+    order = np.arange(9 * placements).reshape(3, 3, placements).transpose(2, 1, 0).ravel()
+    return jax.device_put(jax.tree.map(lambda x: np.asarray(x)[order[:n]], tasks))
+
+
 @functools.lru_cache(maxsize=8)
 def _runner(config: EnvConfig, steps: int):
     """Jitted greedy episodes of one agent over a batch of tasks: (states [N, T], success)."""
@@ -77,21 +86,21 @@ def _pose(action: jax.Array, xy: jax.Array) -> jax.Array:
 def _script_runner(config: EnvConfig, steps: int):
     """Jitted scripted episodes over a batch of tasks: (states [N, T], success)."""
     env = Env(config)
-    home = jnp.radians(jnp.asarray(scene.HOME_POSE_DEG, jnp.float32))
-    sweeps = jnp.asarray(np.stack([scripted.push_waypoints(p, steps) for p in range(3)]),
-                         jnp.float32)
-    pointing = jnp.asarray(scene.pointing_configs(), jnp.float32)
+    # NumPy here, constants of the program once traced (no program of their own)
+    home = np.radians(np.asarray(scene.HOME_POSE_DEG)).astype(np.float32)
+    sweeps = np.stack([scripted.push_waypoints(p, steps) for p in range(3)]).astype(np.float32)
+    pointing = np.asarray(scene.pointing_configs(), np.float32)
 
     def one(key, task: Task, params):
         placed = (jnp.asarray(free_placement.fixed()) if task.placement is None
                   else task.placement)
         pose = _pose(task.action, placed[task.position, :2])
         if task.placement is None:  # the paper's point: its stored pointing pose
-            pose = jnp.where(task.action == 0, pointing[task.position], pose)
+            pose = jnp.where(task.action == 0, jnp.asarray(pointing)[task.position], pose)
         frac = jnp.minimum((jnp.arange(steps) + 1.0) / SCRIPT_APPROACH, 1.0)[:, None]
         path = home + frac * (pose - home)
         if task.placement is None:  # the paper's push: the sweep from behind the object
-            path = jnp.where(task.action == 2, sweeps[task.position], path)
+            path = jnp.where(task.action == 2, jnp.asarray(sweeps)[task.position], path)
 
         first = env.reset(key, task, params)
 
@@ -191,18 +200,20 @@ def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int
         parts += per
     if robot.free is not None and robot.free.n_agents > 1:
         f, per = robot.free, []
-        placements = -(-episodes // 9)
         for i, k in zip(range(f.n_agents), jax.random.split(k_free, f.n_agents), strict=True):
             if i == f.saved_agent:
                 continue
             k_task, k_run = jax.random.split(k)
-            tasks = jax.tree.map(lambda x: x[:episodes],
-                                 al_eval.free_tasks(k_task, placements))
-            agent = jax.tree.map(lambda x, i=i: x[i], f.agents)
-            states, ok = agent_episodes(agent, f.env_config, k_run, tasks, f.params)
+            tasks = free_tasks(k_task, episodes)
+            states, ok = agent_episodes(robot.with_free_agent(i).free.al.agent, f.env_config,
+                                        k_run, tasks, f.params)
             per.append({"agent": i, **judge(robot, states, tasks, ok)})
         res["free"] = _pool(per)
         parts += per
+    if "paper" not in res:
+        res["paper_note"] = "not watched: the modules hold no other paper-family AL agent"
+    if "free" not in res:
+        res["free_note"] = "not watched: the modules hold no other free-family agent"
     res["other_agent"] = (float(np.median([p["acc"] for p in parts])) if parts else None)
     res["scripted"] = {}
     k_sp, k_sf, k_rp, k_rf = jax.random.split(k_script, 4)
@@ -220,7 +231,7 @@ def _scripted(config: EnvConfig, k_task: jax.Array, k_run: jax.Array, n: int, fr
     if free is None:
         tasks, params = paper_tasks(k_task, n), EnvParams()
     else:
-        tasks = jax.tree.map(lambda x: x[:n], al_eval.free_tasks(k_task, -(-n // 9)))
+        tasks = free_tasks(k_task, n)
         params = free.params
     states, ok = scripted_episodes(config, k_run, tasks, params)
     return states, tasks, ok

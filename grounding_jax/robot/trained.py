@@ -10,12 +10,18 @@
     out["named"]                                   # ("push", "red")
     out = robot.perform("push", "red", layout=3, placement="random", key=jax.random.key(1))
     out["xy"], out["true_xy"]                      # the continuous TL's estimate, the truth
+    robot.watch(robot.with_agent(2).perform("touch", "green", layout=7))   # names what
+                                                   # another agent did ("touch", "green")
 
 With ``placement`` (objects anywhere; needs the modules of the free family, which
 ``train.py`` saves beside the paper's) the robot renders the scene with its eye camera, the
 continuous TL (:mod:`grounding_jax.learn.tl_xy`) reads the target's coordinates from it, and the
 free family's actor acts on them, and the free family's namer (an ESN over that actor's and
 that TL's hidden layers) names what was done (``named`` is None for modules saved without it).
+
+:meth:`Robot.watch` names an episode the robot only watched, by motor resonance through its
+own actor (:mod:`grounding_jax.robot.observer`); ``agents`` holds the other AL agents trained
+beside its own (:meth:`Robot.with_agent`).
 
 A checkpoint is refused (:class:`CheckpointError`) when it was written by another package
 version, when its config.json was edited after saving, when a file or an array differs from
@@ -196,7 +202,7 @@ class Robot:
         Raises:
             ValueError: no agents saved, or ``i`` out of range.
         """
-        agent = jax.tree.map(lambda x: x[_agent_index(i, self.n_agents, "")], self.agents)
+        agent = _take(self.agents, _agent_index(i, self.n_agents, ""))
         robot = dataclasses.replace(self, al=TrainedAL(agent, self.al.config))
         robot._performers.update(self._performers)
         return robot
@@ -210,7 +216,7 @@ class Robot:
             ValueError: no free-family agents saved, or ``i`` out of range.
         """
         n = 0 if self.free is None else self.free.n_agents
-        agent = jax.tree.map(lambda x: x[_agent_index(i, n, "free-family ")], self.free.agents)
+        agent = _take(self.free.agents, _agent_index(i, n, "free-family "))
         free = dataclasses.replace(self.free, al=TrainedAL(agent, self.free.al.config))
         robot = dataclasses.replace(self, free=free)
         robot._performers.update(self._performers)
@@ -331,16 +337,16 @@ class Robot:
 
         def command(agent, states, params):
             err = resonance(agent, states, params)
-            a, p = observer.best(observer.score(err))
-            return err, a, p, observer.hidden_under(env, lrn, agent, states, a, p)
+            score = observer.score(err)
+            a, p = observer.best(score)
+            return (err, score), a, p, observer.hidden_under(env, lrn, agent, states, a, p)
 
         if free:
             xy_config, has_an = self.free.xy_config, self.free.an is not None
-            symbols = jnp.asarray(tl_xy.SYMBOLS)
 
             def run(agent, xy_params, net, states, params, bitmap):
                 err, a, p, hidden = command(agent, states, params)
-                words = symbols[states.task.layout[0]]
+                words = jnp.asarray(tl_xy.SYMBOLS)[states.task.layout[0]]
                 bitmaps = jnp.broadcast_to(bitmap, (words.shape[0], bitmap.shape[0]))
                 estimates = tl_xy.localize(xy_params, bitmaps, words, xy_config)
                 w = observer.free_word(estimates, states.task.placement[0, p, :2])
@@ -350,12 +356,13 @@ class Robot:
 
             fn = jax.vmap(run, in_axes=(None, None, None, 0, None, 0))
         else:
-            bitmaps = jnp.asarray(tl_data.cached_bitmaps(), jnp.float32)
-            symbols = jnp.asarray(tl_xy.SYMBOLS)
             hyper = self.tl.hyper
 
             def run(agent, tl_params, net, states, params):
                 err, a, p, hidden = command(agent, states, params)
+                # constants of the program (converted while tracing: no program of their own)
+                bitmaps = jnp.asarray(tl_data.cached_bitmaps(), jnp.float32)
+                symbols = jnp.asarray(tl_xy.SYMBOLS)
                 layout = states.task.layout[0]
                 trained_tl = TrainedTL(tl_params, hyper)
                 words = symbols[layout]
@@ -404,8 +411,8 @@ class Robot:
             from grounding_jax.sim import vision
 
             params = self.free.params if params is None else params
-            layouts = np.asarray(many.task.layout[:, 0])
-            placed = np.asarray(many.task.placement[:, 0])
+            layouts = np.asarray(many.task.layout)[:, 0]
+            placed = np.asarray(many.task.placement)[:, 0]
             renderer = vision.eye_renderer()
             bitmaps = np.stack([tl_xy.bitmap(renderer.render(int(lay), pl))
                                 for lay, pl in zip(layouts, placed, strict=True)])
@@ -419,9 +426,9 @@ class Robot:
             out = self._resonator(False)(self.al.agent, self.tl.params, self.an.net, many,
                                          params)
             an_config, names = self.an.config, self.env_config.tasks.action_names
-        err, a, p, w, outputs = jax.device_get(out)
+        (err, score), a, p, w, outputs = jax.device_get(out)
         rows = [{"action": names[int(a[i])], "position": scene.POSITIONS[int(p[i])],
-                 "errors": err[i], "score": np.asarray(observer.score(err[i])),
+                 "errors": err[i], "score": score[i],
                  "word": tl_data.TARGET_WORDS[int(w[i])],
                  "named": _words(outputs[i], an_config) if an_config else None}
                 for i in range(len(a))]
@@ -439,6 +446,12 @@ class Robot:
         """
         out = self.resonance(trajectory, params)
         return [r["named"] for r in out] if isinstance(out, list) else out["named"]
+
+
+@jax.jit
+def _take(agents: Any, i: jax.Array) -> Any:
+    # one program per agent structure (indexing leaf by leaf builds two per leaf shape)
+    return jax.tree.map(lambda x: x[i], agents)
 
 
 def _count(agents: Any) -> int:
