@@ -115,3 +115,17 @@ def test_bad_trajectories_are_refused_naming_the_field(robot, pushed):
         dataclasses.replace(robot, free=None).watch(placed)
     with pytest.raises(ValueError, match="action_scale"):
         robot.watch(traj, params=gj.EnvParams(action_scale=-1.0))
+
+
+def test_the_observer_pages_example_runs_on_the_committed_modules(monkeypatch, capsys):
+    import re
+
+    text = (ROOT / "docs" / "observer.md").read_text()
+    code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
+    assert "with_agent(3)" in code  # another agent, from another seed, acts
+    monkeypatch.chdir(ROOT)
+    exec(compile(code, "docs/observer.md", "exec"), {})
+    named = capsys.readouterr().out.splitlines()[0]
+    action, word = re.fullmatch(r"\('(\w+)', '(\w+)'\)", named).groups()
+    slot = tl_data.label_of(7, tl_data.word_index("blue"))
+    assert action == "push" and observer.names_target(7, tl_data.word_index(word), slot)

@@ -9,14 +9,18 @@ place, step by step:
    it sets its own observation to that command (the arm's joints and touch sense as watched,
    the command's action and target units), asks its own actor for the move, and imagines
    making it: one env step from the watched state (its body model is the simulator). Two
-   mismatches are averaged over the steps before the episode ended: of the joints (squared,
-   scaled units) and of the hand (the palm's position, squared metres) between where the
-   imagined step and the watched step lead. The command with the smallest product of the two
-   (the sum of their logs: neither's units matter) is the one it resonates with. Both are
-   needed: four joints reach one hand position in many ways, and agents trained from other
-   seeds touch and push with other joint configurations (the paper family's touch and push
-   rewards are distances of the palm), while the hand alone misses how an actor that acts in
-   joint space (point, the free family's touch) moves.
+   mismatches are averaged over the reach -- the episode's first :data:`REACH` /
+   ``action_scale`` steps (15 at the paper's scale of 1/3; before the episode ended) --: of
+   the joints (squared, scaled units) and of the hand (the palm's position, squared metres)
+   between where the imagined step and the watched step lead. The reach says where and how
+   the arm goes; after it each agent settles in its own way (agents trained from other seeds
+   jitter at rest, or rest in contact where the observer would hover) and says less. The
+   command with the smallest product of the two (the sum of their logs: neither's units
+   matter) is the one it resonates with. Both are needed: four joints reach one hand
+   position in many ways, and agents trained from other seeds touch and push with other joint
+   configurations (the paper family's touch and push rewards are distances of the palm),
+   while the hand alone misses how an actor that acts in joint space (point, the free
+   family's touch) moves.
 2. **Naming.** It names that command the way it names its own acts: the AN reads its own
    actor's hidden layer on the watched states (under that command) and the TL's hidden layer
    for a word that names the object in that slot. The observer cannot hear which word the
@@ -43,6 +47,9 @@ from grounding_jax.sim import tasks, tl_data
 from grounding_jax.sim.env import Env, EnvParams, State, Task
 
 N_SLOTS = tasks.N_POSITIONS
+#: the reach, in scaled joint units: the resonance weighs the first ``REACH / action_scale``
+#: steps (as long as the arm takes to move that far at its full step)
+REACH = 5.0
 
 
 def commands(n_actions: int) -> tuple[np.ndarray, np.ndarray]:
@@ -70,8 +77,8 @@ def make_resonance(env: Env, learner: learners.Learner):
     episode (``states``: the env states after each step, stacked ``[T >= 2]``): per command,
     the mean squared mismatch of the joints (scaled units; ``errors[0]``) and of the palm
     (metres; ``errors[1]``) between the watched next state and the one the observer's own move
-    would reach (see the module doc; :func:`score` combines them). Pure; ``vmap`` it for
-    batches."""
+    would reach, over the reach (see the module doc; :func:`score` combines them). Pure;
+    ``vmap`` it for batches."""
     n_actions = env.tasks.n_actions
     act_a, act_p = commands(n_actions)
     joints = tasks.OBS_JOINTS
@@ -88,7 +95,8 @@ def make_resonance(env: Env, learner: learners.Learner):
     def resonance(agent, states: State, params: EnvParams) -> jax.Array:
         cur = jax.tree.map(lambda x: x[:-1], states)
         nxt = jax.tree.map(lambda x: x[1:], states)
-        live = 1.0 - cur.done.astype(jnp.float32)
+        reach = jnp.arange(cur.done.shape[0]) < REACH / params.action_scale
+        live = jnp.where(reach & ~cur.done, 1.0, 0.0)
         errs = jax.vmap(one, in_axes=(None, None, None, None, None, 0, 0))(
             agent, cur, nxt, live, params, jnp.asarray(act_a), jnp.asarray(act_p))
         return errs.T.reshape(2, n_actions, N_SLOTS)
