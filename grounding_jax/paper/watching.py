@@ -26,7 +26,7 @@ from grounding_jax.learn import al
 from grounding_jax.paper import al_eval
 from grounding_jax.robot import observer
 from grounding_jax.sim import placement as free_placement
-from grounding_jax.sim import scene, scripted, tl_data
+from grounding_jax.sim import rollout, scene, scripted, tl_data
 from grounding_jax.sim.env import Env, EnvConfig, EnvParams, Task
 
 #: the goal: action and target words right on another agent's episodes (joint route)
@@ -102,13 +102,9 @@ def _script_runner(config: EnvConfig, steps: int):
         if task.placement is None:  # the paper's push: the sweep from behind the object
             path = jnp.where(task.action == 2, jnp.asarray(sweeps)[task.position], path)
 
-        first = env.reset(key, task, params)
-
-        def body(state, _):
-            nxt = env.step(state, scripted.tracking_action(path, state.step, state.obs), params)
-            return nxt, nxt
-
-        _, traj = jax.lax.scan(body, first, None, length=steps)
+        _, traj = rollout.run_episode(
+            env, key, task, lambda s: scripted.tracking_action(path, s.step, s.obs), params,
+            steps)
         return traj, al_eval.episode_success(traj, task, task_set=env.tasks)["success"]
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
