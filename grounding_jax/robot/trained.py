@@ -198,6 +198,8 @@ class Robot:
         """This robot acting with the paper family's trained AL agent ``i`` (of ``agents``:
         all that train.py trained, from different seeds; by default it acts with
         ``saved_agent``). The TL and the AN stay its own; the compiled episodes are shared.
+        The AN was fitted on the saved agent's hidden layer, so ``perform``'s ``named`` is not
+        to be trusted for another agent; the robot's :meth:`watch` names what it did.
 
         Raises:
             ValueError: no agents saved, or ``i`` out of range.
