@@ -180,7 +180,10 @@ def test_readme_beyond_example_runs_on_the_committed_modules(monkeypatch):
     assert scope["robot"].free is not None and scope["sliding"].velocity is not None
 
 
-def test_the_saved_robot_watches_the_other_agents_and_reruns_alike(quick, capsys):
+def test_the_saved_robot_watches_the_other_agents_and_reruns_alike(quick, capsys,
+                                                                   monkeypatch):
+    import dataclasses
+
     import grounding_jax as gj
 
     data = json.loads((quick / "metrics.json").read_text())
@@ -215,6 +218,13 @@ def test_the_saved_robot_watches_the_other_agents_and_reruns_alike(quick, capsys
     capsys.readouterr()
     assert train.main(["--out", str(quick), "--only", "observer", "--set", "tl_seeds=2"]) == 2
     assert "tl_seeds" in capsys.readouterr().err
+    # modules saved before the AL agents were: nothing to watch, said before anything runs
+    load = gj.load
+    monkeypatch.setattr(gj, "load", lambda p: dataclasses.replace(load(p), agents=None))
+    assert train.main(["--out", str(quick), "--only", "observer"]) == 2
+    assert "holds no other AL agents" in capsys.readouterr().err
+    monkeypatch.undo()
+    assert json.loads((quick / "metrics.json").read_text()) == after  # nothing rewritten
 
 
 def test_only_free_robot_reruns_that_part_with_the_whole_runs_keys(quick, capsys,

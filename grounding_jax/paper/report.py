@@ -376,8 +376,9 @@ def _observer_report(obs: dict | None) -> list[str]:
         "it only watches, by motor resonance (docs/observer.md): for each of its own "
         "commands (3 actions x 3 slots) it imagines making its own actor's move from every "
         "watched state, one env step, and picks the command whose imagined steps follow "
-        "the watched ones most closely, in the joints and in the hand (the smallest product "
-        "of the two mean squared mismatches); its AN then names that command from its own "
+        "the watched ones most closely, in the joints and in the hand, over the reach (the "
+        "smallest product of the two mean squared mismatches over the first 5 / action_scale "
+        "steps); its AN then names that command from its own "
         "actor's hidden layer on the watched states and its TL's hidden layer for a word "
         "its TL places in that slot. A watched episode is named right when the "
         "action word is and the target word names the target (its shape or its colour: the "
@@ -397,7 +398,8 @@ def _observer_report(obs: dict | None) -> list[str]:
             r = obs[fam]
             n = sum(a["n"] for a in r["agents"])
             done = [a["acc_succeeded"] for a in r["agents"] if a["acc_succeeded"] is not None]
-            lines.append(f"| {fam} family, {len(r['agents'])} other agents | {n} | "
+            k = len(r["agents"])
+            lines.append(f"| {fam} family, {k} other agent{'s' * (k != 1)} | {n} | "
                          f"{_pct(r['acc_median'])} | {_pct(r['acc_min'])}-{_pct(r['acc_max'])}"
                          f" | {_pct(statistics.median(done)) if done else '-'} (median agent)"
                          f" | >= {_pct(obs['goal'])} |")
