@@ -200,7 +200,8 @@ def test_the_saved_robot_watches_the_other_agents_and_reruns_alike(quick, capsys
         [a["acc"] for f in ("paper", "free") for a in obs[f]["agents"]]))
     assert obs["frames"] is None  # the camera route is not built, and says so
     assert set(obs["scripted"]) == {"paper", "free"}
-    # the scripted movements do what they are named for, mostly: point always
+    # the scripted movements mostly do what they are named for, by the success rules (7 of 9
+    # in this run: they do not depend on training)
     assert obs["scripted"]["paper"]["watched_success"] >= 0.5
     report = (quick / "REPORT.md").read_text()
     assert "## Beyond the paper: naming what it watches" in report
