@@ -451,13 +451,13 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_
                   file=sys.stderr)
             return 2
         data["observer"] = observer(k_obs, out / "observer", args.settings)
-    elif part == "beyond":
-        extra, modules = beyond(k_xy, k_free, out / "beyond", args.settings, args.backend)
-        data["beyond"]["tl_xy"], free = extra["tl_xy"], extra["free"]
     else:
-        free, modules = beyond_robot(k_free, out / "beyond", args.settings, args.backend,
-                                     robot.free.xy_params, robot.free.xy_config)
-    if part != "observer":
+        if part == "beyond":
+            extra, modules = beyond(k_xy, k_free, out / "beyond", args.settings, args.backend)
+            data["beyond"]["tl_xy"], free = extra["tl_xy"], extra["free"]
+        else:
+            free, modules = beyond_robot(k_free, out / "beyond", args.settings, args.backend,
+                                         robot.free.xy_params, robot.free.xy_config)
         trained.save(modules_dir, robot.tl.params, robot.tl.hyper, robot.al.agent,
                      robot.al.config, robot.an.net, robot.an.config, robot.env_config,
                      extra=robot.config.get("extra"), free_modules=modules,

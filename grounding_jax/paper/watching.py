@@ -13,15 +13,15 @@ the observer cannot hear which one the watched robot was told).
 from __future__ import annotations
 
 import functools
-import json
 import pathlib
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._io import atomic_write_text, pyplot, write_figure
+from grounding_jax.core._io import pyplot, write_figure
 from grounding_jax.learn import al
 from grounding_jax.paper import al_eval
 from grounding_jax.robot import observer
@@ -159,6 +159,27 @@ def _pool(parts: list[dict]) -> dict:
             "agents": parts}
 
 
+class _Family(NamedTuple):
+    """What watching one family's episodes needs."""
+
+    config: EnvConfig
+    params: EnvParams
+    tasks: Callable[[jax.Array, int], Task]  # (key, n) -> n tasks
+    n_agents: int
+    saved: int | None
+    agent: Callable[[int], Any]  # i -> agent i
+
+
+def _families(robot) -> dict[str, _Family | None]:
+    """The robot's families (None where it has no modules for one)."""
+    free = robot.free
+    return {"paper": _Family(robot.env_config, EnvParams(), paper_tasks, robot.n_agents,
+                             robot.saved_agent, lambda i: robot.with_agent(i).al.agent),
+            "free": None if free is None else _Family(
+                free.env_config, free.params, free_tasks, free.n_agents, free.saved_agent,
+                lambda i: robot.with_free_agent(i).free.al.agent)}
+
+
 def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int) -> dict:
     """Watch other agents and scripted movements, in both families when the robot has them.
 
@@ -180,31 +201,21 @@ def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int
     res: dict[str, Any] = {"episodes_per_agent": episodes, "steps": STEPS, "goal": GOAL,
                            "frames": None,
                            "frames_note": "the camera route is not built"}
+    families = _families(robot)
     parts = []
-    if robot.n_agents > 1:
+    for (name, fam), k_fam in zip(families.items(), (k_paper, k_free), strict=True):
+        if fam is None or fam.n_agents < 2:
+            continue
         per = []
-        for i, k in zip(range(robot.n_agents), jax.random.split(k_paper, robot.n_agents),
+        for i, k in zip(range(fam.n_agents), jax.random.split(k_fam, fam.n_agents),
                         strict=True):
-            if i == robot.saved_agent:
+            if i == fam.saved:
                 continue
             k_task, k_run = jax.random.split(k)
-            tasks = paper_tasks(k_task, episodes)
-            states, ok = agent_episodes(robot.with_agent(i).al.agent, robot.env_config, k_run,
-                                        tasks, EnvParams())
+            tasks = fam.tasks(k_task, episodes)
+            states, ok = agent_episodes(fam.agent(i), fam.config, k_run, tasks, fam.params)
             per.append({"agent": i, **judge(robot, states, tasks, ok)})
-        res["paper"] = _pool(per)
-        parts += per
-    if robot.free is not None and robot.free.n_agents > 1:
-        f, per = robot.free, []
-        for i, k in zip(range(f.n_agents), jax.random.split(k_free, f.n_agents), strict=True):
-            if i == f.saved_agent:
-                continue
-            k_task, k_run = jax.random.split(k)
-            tasks = free_tasks(k_task, episodes)
-            states, ok = agent_episodes(robot.with_free_agent(i).free.al.agent, f.env_config,
-                                        k_run, tasks, f.params)
-            per.append({"agent": i, **judge(robot, states, tasks, ok)})
-        res["free"] = _pool(per)
+        res[name] = _pool(per)
         parts += per
     if "paper" not in res:
         res["paper_note"] = "not watched: the modules hold no other paper-family AL agent"
@@ -213,24 +224,14 @@ def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int
     res["other_agent"] = (float(np.median([p["acc"] for p in parts])) if parts else None)
     res["scripted"] = {}
     k_sp, k_sf, k_rp, k_rf = jax.random.split(k_script, 4)
-    res["scripted"]["paper"] = judge(robot, *_scripted(robot.env_config, k_sp, k_rp,
-                                                        scripted_per_family, None))
-    if robot.free is not None:
-        res["scripted"]["free"] = judge(robot, *_scripted(robot.free.env_config, k_sf, k_rf,
-                                                           scripted_per_family, robot.free))
+    for (name, fam), k_task, k_run in zip(families.items(), (k_sp, k_sf), (k_rp, k_rf),
+                                          strict=True):
+        if fam is not None:
+            tasks = fam.tasks(k_task, scripted_per_family)
+            states, ok = scripted_episodes(fam.config, k_run, tasks, fam.params)
+            res["scripted"][name] = judge(robot, states, tasks, ok)
     figure(res, out, tuple(robot.env_config.tasks.action_names))
-    atomic_write_text(out / "observer.json", json.dumps(res, indent=1) + "\n")
     return res
-
-
-def _scripted(config: EnvConfig, k_task: jax.Array, k_run: jax.Array, n: int, free):
-    if free is None:
-        tasks, params = paper_tasks(k_task, n), EnvParams()
-    else:
-        tasks = free_tasks(k_task, n)
-        params = free.params
-    states, ok = scripted_episodes(config, k_run, tasks, params)
-    return states, tasks, ok
 
 
 def figure(res: dict, out: pathlib.Path, names: tuple[str, ...]) -> None:
@@ -254,5 +255,5 @@ def figure(res: dict, out: pathlib.Path, names: tuple[str, ...]) -> None:
         ax.set_title(title, fontsize=9)
     fig.suptitle("The observer naming watched actions (motor resonance, joint route)")
     fig.tight_layout()
-    write_figure(out, "observer", {k: v for k, v in res.items() if k != "agents"}, fig)
+    write_figure(out, "observer", res, fig)  # observer.json: every figure of the part
 
