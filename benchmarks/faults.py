@@ -13,9 +13,16 @@ one of ``identical`` (the resumed run's metrics equal an uninterrupted run's, bi
 - each file of saved modules in turn flipped, truncated and deleted, then ``load``;
 - the checkpoint config edited, deleted, made binary; the modules' config.json edited;
 - a second writer (``--overwrite``) while a sweep runs;
-- a full disk (``RLIMIT_FSIZE``) while writing checkpoints and while writing results.
+- a full disk (``RLIMIT_FSIZE``) while writing checkpoints and while writing results;
+- a home that cannot be written (a read-only tmpfs where the machine allows a mount) under the
+  sweep and show CLIs;
+- a 300 x 300 x 5-seed grid (refused before compiling);
+- SIGTERM and SIGKILL at a random rename of a sweep's final write;
+- a real full disk (ENOSPC on a small tmpfs) inside orbax and while writing results;
+- ``--overwrite`` with ``checkpoints/`` a symbolic link; ``perform(" PUSH ", " RED ")``.
 
 Usage:  python benchmarks/faults.py [--kills 20] [--interrupts 5] [--seed 0]
+        [--only home,final_write --merge]   (some families; the others' rows kept)
 Writes results/benchmarks/faults.json and prints a Markdown table.
 """
 
@@ -23,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
 import os
 import pathlib
@@ -40,7 +48,11 @@ import numpy as np
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 import grounding_jax as gj  # noqa: E402
-from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.core._io import (  # noqa: E402
+    atomic_write_text,
+    library_versions,
+    recover_staged,
+)
 from grounding_jax.core.checkpoint import CheckpointError  # noqa: E402
 
 SWEEP = textwrap.dedent("""
@@ -300,6 +312,200 @@ def disk(root: pathlib.Path, done: pathlib.Path, whole: dict) -> list[dict]:
     return rows
 
 
+@contextlib.contextmanager
+def _mounted(where: pathlib.Path, options: str):
+    """A tmpfs mounted at ``where`` with ``options`` (None where mounting is refused)."""
+    where.mkdir(parents=True, exist_ok=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)],
+                       capture_output=True, text=True)
+    try:
+        yield where if r.returncode == 0 else None
+    finally:
+        if r.returncode == 0:
+            subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+#: makes os.replace of a staged result file send ``SIG`` to its own process at the ``AT``-th
+#: such rename (the final write of a sweep interrupted mid-way)
+HOOK = textwrap.dedent("""
+    import os, signal
+    real, n = os.replace, [0]
+    def replace(a, b):
+        if ".staged-" in str(a):
+            n[0] += 1
+            if n[0] == int(os.environ["GJ_FAULT_AT"]):
+                os.kill(os.getpid(), int(os.environ["GJ_FAULT_SIG"]))
+        real(a, b)
+    os.replace = replace
+""")
+
+
+def _result_set(folder: pathlib.Path) -> dict:
+    """A sweep's result files (not its checkpoints), the JSON ones without their wall time."""
+    out = {}
+    for name, data in _files(folder / "out" / "s").items():
+        if name.startswith("checkpoints/"):
+            continue
+        if name.endswith(".json"):
+            data = json.loads(data)
+            data.pop("wall_s", None)
+        out[name] = data
+    return out
+
+
+def _stray(folder: pathlib.Path) -> list[pathlib.Path]:
+    return [p for p in folder.rglob(".*") if "staged" in p.name]
+
+
+def home(root: pathlib.Path, whole: dict) -> list[dict]:
+    """The sweep and show CLIs with a home that cannot be written (a read-only tmpfs where
+    the machine allows a mount, else a home that is a file): one warning line, same results."""
+    d = _fresh(root, "home")
+    rows = []
+    with _mounted(root / "ro-home", "ro,size=64k") as ro:
+        home_dir = ro or (root / "home-file")
+        if ro is None:
+            home_dir.write_text("")
+        env = {k: v for k, v in _env().items() if k not in ("GROUNDING_JAX_CACHE",
+                                                           "MPLCONFIGDIR")}
+        env.update(HOME=str(home_dir), TMPDIR=str(root))
+        what = "read-only tmpfs" if ro else "a file"
+        r = subprocess.run(CMD, cwd=d, env=env, capture_output=True, text=True, timeout=900)
+        warned = [ln for ln in r.stderr.splitlines() if "warning" in ln.lower()]
+        ok = (r.returncode == 0 and "Traceback" not in r.stderr and len(warned) == 1
+              and _same(_metrics(d), whole))
+        rows.append({"fault": "HOME not writable: python -m grounding_jax.sweep",
+                     "home": what, "outcome": "identical" if ok else "WRONG"})
+        modules = HERE.parent / "results" / "quick" / "modules"
+        r = subprocess.run([sys.executable, "-m", "grounding_jax.show", "push red", "--layout",
+                            "3", "--modules", str(modules), "--out", str(d / "v.mp4")],
+                           cwd=d, env=env, capture_output=True, text=True, timeout=900)
+        warned = [ln for ln in r.stderr.splitlines() if "warning" in ln.lower()]
+        ok = (r.returncode == 0 and "Traceback" not in r.stderr and len(warned) == 1
+              and (d / "v.mp4").stat().st_size > 0)
+        rows.append({"fault": "HOME not writable: python -m grounding_jax.show", "home": what,
+                     "outcome": "identical" if ok else "WRONG"})
+    shutil.rmtree(d)
+    return rows
+
+
+def huge_grid(root: pathlib.Path) -> list[dict]:
+    """300 x 300 points x 5 seeds: refused before compiling, nothing written."""
+    d = root / "huge"
+    d.mkdir()
+    values = ", ".join(f"{1e-5 * (i + 1):.6g}" for i in range(300))
+    (d / "s.toml").write_text(f'module = "al"\nseeds = 5\nmetric = "td_error"\n[grid]\n'
+                              f"critic_lr = [{values}]\nactor_lr = [{values}]\n")
+    t = time.perf_counter()
+    r = _run(d)
+    ok = (_clean_error(r) and "in parts of at most" in r.stderr
+          and not (d / "out").exists())
+    shutil.rmtree(d)
+    return [{"fault": "a grid beyond memory (450,000 runs)", "refused_in_s":
+             round(time.perf_counter() - t, 1), "outcome": "refused" if ok else "WRONG"}]
+
+
+def final_write(root: pathlib.Path, done: pathlib.Path, rng) -> list[dict]:
+    """SIGTERM / SIGKILL at a random rename of the final write of an ``--overwrite`` run with
+    a new seed: the old set or the new set, never a mix, and no staged file left once the
+    next run has opened the folder."""
+    new = _fresh(root, "seed7")
+    assert _run(new, "--seed", "7").returncode == 0
+    sets = {"old": _result_set(done), "new": _result_set(new)}
+    hook = root / "hook"
+    hook.mkdir(exist_ok=True)
+    (hook / "sitecustomize.py").write_text(HOOK)
+    rows = []
+    for sig in (signal.SIGTERM, signal.SIGKILL, signal.SIGTERM, signal.SIGKILL):
+        d = root / "final"
+        shutil.copytree(done, d)
+        at = rng.randint(1, 5)  # the journal, then the set's files
+        env = {**_env(), "PYTHONPATH": str(hook), "GJ_FAULT_AT": str(at),
+               "GJ_FAULT_SIG": str(int(sig))}
+        r = subprocess.run([*CMD, "--overwrite", "--seed", "7"], cwd=d, env=env,
+                           capture_output=True, text=True, timeout=900)
+        clean = (r.returncode == 143 and "Traceback" not in r.stderr) if sig == \
+            signal.SIGTERM else r.returncode == -signal.SIGKILL
+        if sig == signal.SIGKILL:  # the next writer completes the interrupted commit
+            recover_staged(d / "out" / "s")
+        got = _result_set(d)
+        which = [n for n, want in sets.items() if got == want]
+        ok = clean and len(which) == 1 and not _stray(d / "out")
+        rows.append({"fault": f"{signal.Signals(sig).name} during the final write",
+                     "at_rename": at, "rc": r.returncode, "set": which[0] if which else "mixed",
+                     "outcome": "identical" if ok else "WRONG"})
+        shutil.rmtree(d)
+    shutil.rmtree(new)
+    return rows
+
+
+def real_disk(root: pathlib.Path, whole: dict) -> list[dict]:
+    """A real ENOSPC (a small tmpfs) inside orbax's checkpoint write and while writing the
+    results: one line, no traceback, the earlier state kept, resumed identical elsewhere."""
+    rows = []
+    with _mounted(root / "small", "size=160k") as disk:
+        if disk is None:
+            return [{"fault": "ENOSPC (tmpfs)", "outcome": "skipped: mount refused"}]
+        d = _fresh(disk, "ck")
+        r = _run(d)
+        steps = d / "out" / "s" / "checkpoints" / "group0" / "steps"
+        sealed = [p for p in steps.iterdir() if (p / "manifest.json").is_file()]
+        ok = (_clean_error(r) and r.stderr.strip().count("\n") == 0
+              and "no space left" in r.stderr and bool(sealed))
+        moved = root / "ck-moved"
+        shutil.copytree(d, moved)
+        again = _run(moved, "--resume")
+        ok = ok and again.returncode == 0 and _same(_metrics(moved), whole)
+        rows.append({"fault": "ENOSPC (tmpfs) inside orbax's checkpoint write",
+                     "outcome": "identical" if ok else "WRONG"})
+        if not ok:
+            rows[-1].update(rc=r.returncode, stderr=r.stderr[-1500:],
+                            resumed=again.stderr[-1500:])
+        shutil.rmtree(moved)
+    with _mounted(root / "small2", "size=600k") as disk:
+        d = _fresh(disk, "res")
+        assert _run(d).returncode == 0
+        before = _files(d / "out")
+        subprocess.run(["dd", "if=/dev/zero", f"of={disk / 'fill'}", "bs=4k"],
+                       capture_output=True)
+        r = _run(d, "--resume")
+        ok = (_clean_error(r) and r.stderr.strip().count("\n") == 0
+              and _files(d / "out") == before)
+        rows.append({"fault": "ENOSPC (tmpfs) while writing the results",
+                     "outcome": "refused" if ok else "WRONG"})
+    return rows
+
+
+def linked(root: pathlib.Path, done: pathlib.Path) -> list[dict]:
+    """``--overwrite`` with ``checkpoints/`` a symbolic link: the link stays, the run works."""
+    new = _fresh(root, "link-ref")
+    assert _run(new, "--seed", "7").returncode == 0
+    d = root / "link"
+    shutil.copytree(done, d)
+    scratch = root / "scratch"
+    shutil.move(d / "out" / "s" / "checkpoints", scratch)
+    (d / "out" / "s" / "checkpoints").symlink_to(scratch)
+    r = _run(d, "--overwrite", "--seed", "7")
+    ok = (r.returncode == 0 and (d / "out" / "s" / "checkpoints").is_symlink()
+          and _same(_metrics(d), _metrics(new)))
+    shutil.rmtree(d), shutil.rmtree(new), shutil.rmtree(scratch)
+    return [{"fault": "--overwrite with checkpoints/ a symbolic link",
+             "outcome": "identical" if ok else "WRONG"}]
+
+
+def spoken() -> list[dict]:
+    """perform(" RED ") is perform("red")."""
+    robot = gj.load(HERE.parent / "results" / "quick" / "modules")
+    a = robot.perform("push", "red", layout=3, steps=8)
+    b = robot.perform(" PUSH ", " RED ", layout=3, steps=8)
+    ok = a["named"] == b["named"] and np.array_equal(a["trajectory"].obs, b["trajectory"].obs)
+    return [{"fault": 'perform(" PUSH ", " RED ")', "outcome": "identical" if ok else "WRONG"}]
+
+
+FAMILIES = ("signals", "files", "modules", "configs", "writers", "disk", "home", "huge_grid",
+            "final_write", "real_disk", "linked", "spoken")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--kills", type=int, default=20)
@@ -307,7 +513,15 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(HERE.parent / "results" / "benchmarks" /
                                          "faults.json"))
+    ap.add_argument("--only", default=",".join(FAMILIES),
+                    help=f"comma-separated families of faults, of {FAMILIES}")
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the other families' rows of an existing --out")
     args = ap.parse_args()
+    only = [f for f in args.only.split(",") if f]
+    bad = [f for f in only if f not in FAMILIES]
+    if bad:
+        ap.error(f"--only: unknown {bad}; accepted: {', '.join(FAMILIES)}")
     gj.enable_compilation_cache()
     rng = random.Random(args.seed)
     t0 = time.perf_counter()
@@ -319,14 +533,23 @@ def main() -> None:
         wall = time.perf_counter() - t
         assert r.returncode == 0, r.stderr[-3000:]
         whole = _metrics(done)
-        rows = [*signals(root, whole, args.kills, signal.SIGKILL, rng),
-                *signals(root, whole, args.interrupts, signal.SIGINT, rng),
-                *sweep_files(root, done, whole), *module_files(root),
-                *configs(root, done), *writers(root, whole), *disk(root, done, whole)]
-    table = collections.defaultdict(collections.Counter)
+        run = {"signals": lambda: [*signals(root, whole, args.kills, signal.SIGKILL, rng),
+                                   *signals(root, whole, args.interrupts, signal.SIGINT, rng)],
+               "files": lambda: sweep_files(root, done, whole),
+               "modules": lambda: module_files(root), "configs": lambda: configs(root, done),
+               "writers": lambda: writers(root, whole), "disk": lambda: disk(root, done, whole),
+               "home": lambda: home(root, whole), "huge_grid": lambda: huge_grid(root),
+               "final_write": lambda: final_write(root, done, rng),
+               "real_disk": lambda: real_disk(root, whole),
+               "linked": lambda: linked(root, done), "spoken": spoken}
+        rows = [{**row, "family": name} for name in only for row in run[name]()]
+    if args.merge and pathlib.Path(args.out).is_file():  # the other families' rows kept
+        kept = json.loads(pathlib.Path(args.out).read_text())["rows"]
+        rows = [r for r in kept if r.get("family") not in only] + rows
+    counts = collections.defaultdict(collections.Counter)
     for row in rows:
-        table[row["fault"]][row["outcome"]] += 1
-    summary = [{"fault": f, "injected": sum(c.values()), **dict(c)} for f, c in table.items()]
+        counts[row["fault"]][row["outcome"]] += 1
+    summary = [{"fault": f, "injected": sum(c.values()), **dict(c)} for f, c in counts.items()]
     kills = [r for r in rows if r["fault"] in ("SIGKILL", "SIGINT")]
     landed = {"before the first checkpoint": sum(r["episodes_done"] == 0 and not
                                                  r["ended_before"] for r in kills),

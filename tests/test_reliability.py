@@ -299,6 +299,7 @@ def test_an_interrupt_keeps_the_newest_step_and_prints_the_resume_command(
                        text=True, timeout=600,
                        env={**os.environ, "GROUNDING_JAX_THREADS": "2"})
     assert r.returncode == 0 and "nothing to resume" not in r.stderr, r.stderr[-2000:]
+    assert f"note: resuming {steps.parent} from its step {kept}" in r.stderr, r.stderr
     _same_results(whole, w)
 
 

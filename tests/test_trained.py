@@ -120,6 +120,12 @@ def test_perform_compiles_once_per_step_count_and_answers_as_the_modules_do(tmp_
     assert out["named"] == robot.an.name(hidden, tl_h)
     with pytest.raises(ValueError, match="steps"):
         robot.perform("push", "red", layout=3, steps=0)
+    # a command as typed: case and surrounding spaces do not matter, a wrong word still does
+    loud = robot.perform(" PUSH ", " Red\t", layout=3, steps=4)
+    assert loud["named"] == outs[0]["named"] and loud["position"] == outs[0]["position"]
+    np.testing.assert_array_equal(loud["trajectory"].obs, outs[0]["trajectory"].obs)
+    with pytest.raises(ValueError, match="target word.*accepted"):
+        robot.perform("push", "re d", layout=3, steps=4)
 
 
 def test_the_paper_familys_agents_are_saved_beside_the_robots_own(tmp_path, modules):

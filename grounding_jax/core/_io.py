@@ -10,7 +10,10 @@ import json
 import os
 import pathlib
 import platform
+import re
 from collections.abc import Iterator
+
+from grounding_jax.core import _guard
 
 
 def _remove_quietly(path: pathlib.Path) -> None:
@@ -40,14 +43,75 @@ def atomic_write_text(path: pathlib.Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
+#: a staged file's name: ``.<stem>.staged-<pid>-<n><suffix>``; a commit's journal:
+#: ``.staged-<pid>.journal`` (the renames it is making, written before the first of them)
+_STAGED = re.compile(r"^\..*\.staged-(\d+)-\d+")
+_JOURNAL = re.compile(r"^\.staged-(\d+)\.journal$")
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
+def recover_staged(folder: pathlib.Path) -> list[str]:
+    """Finish or clean up what a writer that died mid-way left in ``folder``: a commit that
+    had begun (its journal is there) is completed, so the new set stands whole; staged files
+    that never reached a commit are deleted, so the earlier set stands. Only files of
+    processes no longer running are touched.
+
+    Returns:
+        What was done, one phrase per item (for a note).
+    """
+    folder = pathlib.Path(folder)
+    done: list[str] = []
+    if not folder.is_dir():
+        return done
+    for journal in sorted(folder.glob(".staged-*.journal")):
+        m = _JOURNAL.match(journal.name)
+        if m is None or _alive(int(m.group(1))):
+            continue
+        try:
+            pairs = json.loads(journal.read_text())
+        except (OSError, ValueError):
+            pairs = None  # written atomically, so unreadable means not ours: leave it
+        if not isinstance(pairs, list):
+            continue
+        for tmp, final in pairs:
+            if (folder / tmp).exists():
+                os.replace(folder / tmp, folder / final)
+        journal.unlink()
+        done.append(f"completed an interrupted commit of {len(pairs)} files")
+    left = [p for p in folder.rglob(".*.staged-*") if (m := _STAGED.match(p.name))
+            and not _alive(int(m.group(1)))]
+    for p in left:
+        _remove_quietly(p)
+    if left:
+        done.append(f"removed {len(left)} staged files an interrupted writer left")
+    return done
+
+
 class Staged:
     """Several result files that replace their earlier versions together: each is written to
     a temporary beside its final name, and only :meth:`commit` (after every write succeeded)
-    renames them into place, so a full disk mid-way leaves the earlier set whole."""
+    renames them into place, so a full disk mid-way leaves the earlier set whole.
+
+    The renames happen with SIGINT/SIGTERM held back (they take effect once the new set is in
+    place), after a journal of them is written: a writer killed mid-commit has its commit
+    completed by the next :class:`Staged` on the folder (:func:`recover_staged`), which also
+    deletes the staged files of writers that died before committing."""
 
     def __init__(self, folder: pathlib.Path) -> None:
         self.folder = pathlib.Path(folder)
         self._pending: list[tuple[pathlib.Path, pathlib.Path]] = []
+        recover_staged(self.folder)
 
     def path(self, name: str) -> pathlib.Path:
         """A temporary path for ``name`` (renamed to ``folder/name`` on commit; a name
@@ -69,9 +133,22 @@ class Staged:
             os.fsync(f.fileno())
 
     def commit(self) -> None:
-        for tmp, final in self._pending:
-            os.replace(tmp, final)
-        self._pending = []
+        """Rename every staged file into place, as one set."""
+        if not self._pending:
+            return
+        journal = self.folder / f".staged-{os.getpid()}.journal"
+        rel = [[t.relative_to(self.folder).as_posix(), f.relative_to(self.folder).as_posix()]
+               for t, f in self._pending]
+        with _guard.deferred():
+            try:
+                atomic_write_text(journal, json.dumps(rel))
+            except BaseException:
+                self.discard()
+                raise
+            for tmp, final in self._pending:
+                os.replace(tmp, final)
+            self._pending = []
+            _remove_quietly(journal)
 
     def discard(self) -> None:
         for tmp, _ in self._pending:

@@ -42,46 +42,13 @@ from typing import Any
 import jax
 import numpy as np
 
-from grounding_jax.core import _guard
+from grounding_jax.core import _guard, orbax_quiet
 from grounding_jax.core._io import atomic_write_text, code_fingerprint, library_versions
 
 CONFIG_FILE = "config.json"
 MANIFEST = "manifest.json"
 #: the manifest's format (a manifest of another format is not trusted)
 MANIFEST_FORMAT = 1
-
-
-_failed_reads = [0]  # restores that failed in this process
-
-
-def _echo_of_a_failed_read(unraisable) -> bool:
-    """When tensorstore cannot read a damaged file, orbax's restore raises (and the step is
-    refused with a clear error), but the read's other coroutines are closed unfinished and
-    their futures' callbacks hit the closed asyncio loop: Python then prints their
-    "Exception ignored ... Event loop is closed" tracebacks, with nothing left to act on."""
-    if not _failed_reads[0]:
-        return False
-    e, obj = unraisable.exc_value, unraisable.object
-    code = getattr(obj, "cr_code", None)
-    return ((isinstance(e, RuntimeError) and str(e) == "Event loop is closed")
-            or (code is not None and f"{os.sep}orbax{os.sep}" in code.co_filename))
-
-
-def _quiet_closed_loop(previous: Callable) -> Callable:
-    """An unraisable-exception hook that drops the echoes of a failed read
-    (:func:`_echo_of_a_failed_read`) and passes everything else to the previous hook."""
-
-    def hook(unraisable) -> None:
-        if not _echo_of_a_failed_read(unraisable):
-            previous(unraisable)
-
-    hook._grounding_jax = True  # type: ignore[attr-defined]
-    return hook
-
-
-def _install_quiet_hook() -> None:
-    if not getattr(sys.unraisablehook, "_grounding_jax", False):
-        sys.unraisablehook = _quiet_closed_loop(sys.unraisablehook)
 
 
 class CheckpointError(RuntimeError):
@@ -277,8 +244,9 @@ class Checkpointer:
         kept = self.latest_step()
         with _guard.deferred():  # an interrupt lands after the step is sealed, not inside
             try:
-                self.manager.save(step, args=self._ocp.args.StandardSave(storable))
-                self.manager.wait_until_finished()
+                with orbax_quiet.stderr_held():
+                    self.manager.save(step, args=self._ocp.args.StandardSave(storable))
+                    self.manager.wait_until_finished()
                 atomic_write_text(where / MANIFEST, json.dumps(_sealed(
                     {"format": MANIFEST_FORMAT, "step": int(step),
                      "config_sha256": self._config_sha, "arrays": arrays,
@@ -286,10 +254,12 @@ class Checkpointer:
                 for old in self.steps()[self.max_to_keep:]:  # older than the kept ones
                     shutil.rmtree(self.directory / "steps" / str(old))
             except Exception as e:  # orbax/tensorstore raise many types for an I/O failure
+                orbax_quiet.quiet_failed_io()
                 kept_msg = (f"step {kept} is kept as it was" if kept is not None else
                             "no earlier step existed")
-                raise CheckpointError(f"{where}: could not be written ({type(e).__name__}: "
-                                      f"{str(e)[:300]}); {kept_msg}") from e
+                why = orbax_quiet.io_reason(e)
+                raise CheckpointError(f"{where}: could not be written ({why}); {kept_msg}"
+                                      ) from e
 
     def seal(self, step: int, like: Any) -> None:
         """Write the manifest of a step saved before manifests existed, from its files as
@@ -303,11 +273,11 @@ class Checkpointer:
         if (where / MANIFEST).exists():
             raise CheckpointError(f"{where}: already sealed; a manifest is never rewritten")
         abstract = jax.tree.map(_abstract, _to_storable(like))
-        _install_quiet_hook()
+        orbax_quiet.install_quiet_hook()
         try:
             tree = self.manager.restore(step, args=self._ocp.args.StandardRestore(abstract))
         except Exception as e:
-            _failed_reads[0] += 1
+            orbax_quiet.quiet_failed_io()
             raise CheckpointError(f"{where}: cannot be read ({type(e).__name__}: "
                                   f"{str(e)[:300]})") from e
         atomic_write_text(where / MANIFEST, json.dumps(_sealed(
@@ -371,11 +341,11 @@ class Checkpointer:
         if not readable:  # files missing, resized or in orbax's index: not worth a read
             raise DamagedStepError(f"{where}: damaged; files that differ from the manifest: "
                                    f"{', '.join(bad_files)}", step)
-        _install_quiet_hook()  # pytest and other tools may have replaced the hook since
+        orbax_quiet.install_quiet_hook()  # pytest and other tools may have replaced the hook since
         try:
             tree = self.manager.restore(step, args=self._ocp.args.StandardRestore(abstract))
         except Exception as e:  # orbax/tensorstore raise many types for damaged files
-            _failed_reads[0] += 1
+            orbax_quiet.quiet_failed_io()
             if bad_files:
                 raise DamagedStepError(f"{where}: damaged: cannot be read ({type(e).__name__})"
                                        f"; files that differ from the manifest: "

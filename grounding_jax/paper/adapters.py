@@ -221,6 +221,53 @@ def _run_tl(cfg: tl.TLConfig, keys, hp, spec: SweepSpec, sharding, ck, progress)
 
 
 
+def _nbytes(tree) -> int:
+    def size(x) -> int:  # a typed PRNG key is stored as its key data (2 uint32 words)
+        item = 8 if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key) else np.dtype(
+            x.dtype).itemsize
+        return int(np.prod(x.shape)) * item
+
+    return sum(size(x) for x in jax.tree.leaves(tree))
+
+
+#: memory a run takes beside its own arrays, whatever its length: the physics step's
+#: buffers and XLA's temporaries, measured as the slope of peak RSS over batch size (1,024 to
+#: 8,192 runs of 2 episodes, chunk 2: 62 KB a run; 16 to 128 runs of 100 episodes, chunk 50:
+#: ~270 KB a run, noisy) less what the formula below counts
+_AL_RUN_OVERHEAD = 56_000
+#: copies of an episode's first state a chunk holds (the reset states of every episode of the
+#: chunk, the selected ones, the loop's carry), fitted with the figures above
+_AL_STATE_COPIES = 8
+
+
+#: bytes of an episode's metrics, an upper bound (16 float32 values; the AL records ~10)
+_AL_EPISODE_METRICS = 64
+
+
+@functools.lru_cache(maxsize=32)
+def _al_run_bytes(cfg: al.ALConfig, chunk: int, n_evals: int) -> int:
+    # shapes only, and without tracing the trainer (its traces are counted: one per group)
+    agent = jax.eval_shape(lambda k: al.schedule(k, cfg), jax.random.key(0))
+    saved = (_nbytes(agent) + cfg.episodes * _AL_EPISODE_METRICS
+             + 4 * n_evals * len(al_eval.SUCCESS_METRICS))
+    task = env.make_task("point", 0, 0, cfg.env.task_set)
+    state = _nbytes(jax.eval_shape(env.Env(cfg.env).reset, jax.random.key(0), task,
+                                   EnvParams()))
+    return saved + min(chunk, cfg.episodes) * _AL_STATE_COPIES * state + _AL_RUN_OVERHEAD
+
+
+@functools.lru_cache(maxsize=32)
+def _tl_run_bytes(cfg: tl.TLConfig) -> int:
+    data = tl_data.load()
+    n_in = data.bitmaps.shape[1] + 15 * cfg.max_replication
+    inputs = data.bitmaps.shape[0] * n_in * 4
+    params = 4 * (n_in * cfg.max_hidden + cfg.max_hidden + 4 * cfg.max_hidden + 4)
+    # the run's params with their gradients and update, and two copies of the inputs (its
+    # own, noisy and scaled, and XLA's temporaries): the slope of peak RSS over 64 to 1,024
+    # runs of the paper's TL, 2 epochs, was 2.5 MB a run, this formula's figure 3.5 MB
+    return 3 * params + 2 * inputs
+
+
 @functools.lru_cache(maxsize=8)
 def _al_pieces(cfg: al.ALConfig) -> Pieces:
     """The AL trained piece by piece (ASHA, PBT), its success rates measured as a grid's are
@@ -240,7 +287,10 @@ def _al_pieces(cfg: al.ALConfig) -> Pieces:
 AL = Adapter(_FIELDS["al"], _METRICS["al"], "episodes",
              lambda p: p["phase1_episodes"] + p["phase2_episodes"], _al_config, _al_hyper,
              _run_al, curves=True, evaluates=True, success=al_eval.SUCCESS_METRICS,
-             lower_is_better=LOWER_IS_BETTER, saved_like=_al_saved_like, pieces=_al_pieces)
+             lower_is_better=LOWER_IS_BETTER, saved_like=_al_saved_like, pieces=_al_pieces,
+             run_bytes=lambda cfg, spec: _al_run_bytes(cfg, spec.chunk,
+                                                       len(spec.evaluations())))
 #: the target localizer
 TL = Adapter(_FIELDS["tl"], _METRICS["tl"], "epochs", lambda p: p["epochs"], _tl_config,
-             tl.stack_hyper, _run_tl, lower_is_better=LOWER_IS_BETTER)
+             tl.stack_hyper, _run_tl, lower_is_better=LOWER_IS_BETTER,
+             run_bytes=lambda cfg, spec: _tl_run_bytes(cfg))

@@ -170,6 +170,12 @@ class TrainedFree:
         return tl_xy.hidden(self.xy_params, *self._inputs(rgb, layout, word), self.xy_config)
 
 
+def _spoken(w: Any) -> Any:
+    """A command's word as heard: case and surrounding spaces do not matter (" RED " is
+    "red"); anything but a string is left for the checks to refuse."""
+    return w.strip().lower() if isinstance(w, str) else w
+
+
 @dataclasses.dataclass(frozen=True)
 class Robot:
     """The three trained modules together, as :func:`load` returns them (``free``: the free
@@ -246,8 +252,9 @@ class Robot:
         The episode is compiled on the first call for a step count; later calls reuse it.
 
         Args:
-            action: the command's action ("push").
-            word: the command's target word ("red").
+            action: the command's action ("push"; case and surrounding spaces do not
+                matter).
+            word: the command's target word ("red", " RED " alike).
             layout: which shape and colour stands in each slot (0..35).
             steps: RL steps to act.
             key: PRNG key (the reset's; with ``placement="random"`` split once: placement,
@@ -266,6 +273,7 @@ class Robot:
         """
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ValueError(f"steps: {steps!r} is not accepted; accepted: an int >= 1")
+        action, word = _spoken(action), _spoken(word)
         if params is not None:
             params.validate()  # on the host: inside the compiled episode it is traced
         if placement is not None:

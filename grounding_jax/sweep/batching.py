@@ -1,8 +1,10 @@
 """What the sweep runner and the searches share: sharding a batch, padding it, finding its
-non-finite runs, chunk ends, resuming from a checkpoint and assembling the groups' results."""
+non-finite runs, chunk ends, resuming from a checkpoint, assembling the groups' results and
+the memory a batch may take."""
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import Any
 
@@ -47,6 +49,9 @@ def restore_to_resume(ck: Checkpointer, like: Any) -> tuple[int, Any] | None:
         for where in ck.set_aside_after(found[0]):
             print(f"warning: resuming from step {found[0]}; the damaged step was moved to "
                   f"{where}", file=sys.stderr, flush=True)
+        # said whether or not a progress bar shows it: where a resumed run picks up
+        print(f"note: resuming {ck.directory} from its step {found[0]} (AL: the episodes "
+              "done)", file=sys.stderr, flush=True)
     return found
 
 
@@ -79,3 +84,34 @@ def assemble(results: list[dict], n_rows: int) -> tuple[dict[str, np.ndarray], n
     for r in results:
         finite[r["rows"]] = r["finite"]
     return metrics, finite
+
+
+#: the share of the memory available that one batch's estimate may take
+MEMORY_SHARE = 0.7
+
+
+def memory_budget() -> tuple[int, str]:
+    """(bytes a batch may take, what they are): the local accelerators' memory limit, or on
+    a CPU the memory this machine has available now (``MemAvailable``)."""
+    devices = jax.local_devices()
+    if devices[0].platform != "cpu":
+        stats = devices[0].memory_stats() or {}
+        if stats.get("bytes_limit"):
+            return (int(stats["bytes_limit"]) * len(devices),
+                    f"the memory of {len(devices)} {devices[0].platform} device(s)")
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024, "the memory available on this machine"
+    except OSError:
+        pass
+    return (os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"),
+            "this machine's memory")
+
+
+def gigabytes(n: float) -> str:
+    """``n`` bytes as a short figure (``"1.2 GB"``, ``"340 MB"``, ``"250 kB"``)."""
+    if n >= 1e9:
+        return f"{n / 1e9:.1f} GB"
+    return f"{n / 1e6:.0f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB"

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import hashlib
 import json
+import os
 import pathlib
 import shutil
 import sys
@@ -24,11 +26,21 @@ import numpy as np
 from grounding_jax.core import _guard
 from grounding_jax.core._io import Staged, code_fingerprint, library_versions
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError
-from grounding_jax.sweep.batching import assemble, batch_sharding, finite_rows, pad_rows
+from grounding_jax.sweep.batching import (
+    MEMORY_SHARE,
+    assemble,
+    batch_sharding,
+    finite_rows,
+    gigabytes,
+    memory_budget,
+    pad_rows,
+)
 from grounding_jax.sweep.spec import SweepError, SweepSpec, adapter, module_config
 from grounding_jax.sweep.summary import csv_text, summaries, write_sweep_figure
 
 EXECUTORS = ("local", "ray")
+#: errors of a full disk (or quota)
+_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 #: what the held-out key of a grid is folded from the sweep's key with
 HOLDOUT_STREAM = 0x484F4C44
 
@@ -223,12 +235,15 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
     folder = pathlib.Path(out) / spec.name
     if folder.exists() and not folder.is_dir():
         raise SweepError(f"out: {folder} is a file, not a folder; name another --out")
+    check_size(spec)
     with contextlib.ExitStack() as stack:
         try:
             stack.enter_context(_guard.folder_lock(folder, f"sweep {spec.name}"))
         except OSError as e:
-            raise SweepError(f"out: cannot write {folder} ({e.strerror or e}); name a "
-                             "writable folder with --out") from None
+            hint = ("free some space on its disk" if e.errno in _FULL else
+                    "name a writable folder with --out")
+            raise SweepError(f"out: cannot write {folder} ({e.strerror or e}); {hint}"
+                             ) from None
         return _run_locked(spec, folder, resume, overwrite, executor, ray_address,
                            show_progress, key)
 
@@ -236,8 +251,8 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
 def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: bool,
                 executor: str, ray_address: str | None, show_progress: bool,
                 key: jax.Array | None) -> dict:
-    if overwrite and (folder / "checkpoints").exists():
-        shutil.rmtree(folder / "checkpoints")
+    if overwrite:
+        _clear_checkpoints(folder / "checkpoints")
     if overwrite and (folder / "study.db").exists():
         (folder / "study.db").unlink()
     if spec.search != "grid":
@@ -290,6 +305,53 @@ def _run_locked(spec: SweepSpec, folder: pathlib.Path, resume: bool, overwrite: 
         raise SweepError(f"out: cannot write the results in {folder} ({e.strerror or e}); "
                          "the earlier results there and the checkpoints are kept") from None
     return summary
+
+
+def check_size(spec: SweepSpec) -> None:
+    """Refuse, before anything compiles or is written, a sweep whose largest batch (a static
+    group of a grid, a search's trials) would not fit in memory, by its adapter's estimate
+    of a run's memory (``Adapter.run_bytes``; modules without one are not checked).
+
+    Raises:
+        SweepError: with the estimate, the memory there is, and how to run it in parts.
+    """
+    found = adapter(spec.module)
+    if found.run_bytes is None:
+        return
+    if spec.search == "grid":
+        batches = [(g, static, len(idx) * spec.seeds) for g, (static, idx)
+                   in enumerate(spec.groups())]
+    else:
+        batches = [(0, spec.groups()[0][0], spec.trials * spec.seeds)]
+    budget, what = memory_budget()
+    for g, static, rows in batches:
+        each = found.run_bytes(module_config(spec, static), spec)
+        if rows * each <= MEMORY_SHARE * budget:
+            continue
+        fits = max(int(MEMORY_SHARE * budget // each), 1)
+        where = f"static group {g}" if len(batches) > 1 else "its batch"
+        raise SweepError(
+            f"grid: {rows} runs in {where} would take about {gigabytes(rows * each)} "
+            f"({gigabytes(each)} a run, estimated), more than {MEMORY_SHARE:.0%} of "
+            f"{what} ({gigabytes(budget)}); run it in parts of at most {fits} runs: split "
+            "the grid's values over several sweep files (or --set a part of them), or fewer "
+            "seeds")
+
+
+def _clear_checkpoints(where: pathlib.Path) -> None:
+    """``--overwrite``'s deletion of a sweep's checkpoints. A ``checkpoints`` that is a
+    symbolic link (to a scratch disk, say) stays: the groups' folders inside its target go."""
+    if not where.is_symlink():
+        if where.exists():
+            shutil.rmtree(where)
+        return
+    if not where.is_dir():
+        raise SweepError(f"overwrite: {where} is a symbolic link to "
+                         f"{os.readlink(where)!r}, which is not a folder; remove the link or "
+                         "point it at a folder")
+    for group in where.iterdir():
+        if group.name.startswith("group") and group.name[5:].isdigit():
+            shutil.rmtree(group)
 
 
 def _executor(executor: str, ray_address: str | None, bar, config: Any) -> Callable:

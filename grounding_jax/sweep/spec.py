@@ -77,6 +77,11 @@ class Field:
     ok: Callable[[Any], bool] | None = None
     choices: tuple | None = None
 
+    def __repr__(self) -> str:
+        accepted = f"one of {self.choices}" if self.choices else self.rule
+        return (f"Field({self.kind} {self.type.__name__}, default {self.default!r}"
+                + (f", {accepted}" if accepted else "") + ")")
+
 
 
 
@@ -123,6 +128,9 @@ class Adapter:
             trained_agents`; None: its agents cannot be read back.
         pieces: ``pieces(config) -> Pieces`` for one group's static config, or None: the
             module trains in one piece (grid, random and Optuna searches only).
+        run_bytes: ``run_bytes(config, spec) -> bytes`` one run of a group takes while its
+            batch trains (an estimate: a grid too big for memory is refused before anything
+            compiles); None: not estimated.
     """
 
     fields: dict[str, Field]
@@ -138,6 +146,7 @@ class Adapter:
     lower_is_better: frozenset[str] = frozenset()
     saved_like: Callable[..., Any] | None = None
     pieces: Callable[[Any], Pieces] | None = None
+    run_bytes: Callable[[Any, Any], int] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,6 +222,13 @@ class _View(Mapping):
 
     def __len__(self) -> int:
         return len(adapters())
+
+    def __repr__(self) -> str:
+        lines = []
+        for module in self:
+            lines.append(f"{module}:")
+            lines += [f"  {name}: {value!r}" for name, value in self[module].items()]
+        return "\n".join(lines)
 
 
 #: the sweepable fields and the plottable metrics of every registered module
