@@ -142,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     import jax
+    import numpy as np
 
     import grounding_jax as gj
     from grounding_jax.core.checkpoint import CheckpointError
@@ -158,9 +159,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     named = " ".join(result["named"]) if result["named"] else "(no namer)"
     caption = f"heard: {action} {word}   named: {named}"
-    print(f"{action} {word}, layout {args.layout} ({args.placement}): the TL found the "
-          f"{result['position']} object (truly {result['true_position']}); final reward "
-          f"{result['final_reward']:.3f}; the robot named it: {named}")
+    if "xy" in result:  # objects anywhere: where, in table coordinates, not slot words
+        xy, true = (100 * np.asarray(result[k], float) for k in ("xy", "true_xy"))
+        found = (f"objects placed at random (seed {args.seed}): the TL put the {word} object "
+                 f"at ({xy[0]:.1f}, {xy[1]:.1f}) cm, truly ({true[0]:.1f}, {true[1]:.1f}) cm "
+                 f"({np.linalg.norm(xy - true):.1f} cm off)")
+    else:
+        found = (f"layout {args.layout} (slots): the TL found the {result['position']} "
+                 f"object (truly {result['true_position']})")
+    print(f"{action} {word}, {found}; final reward {result['final_reward']:.3f}; the robot "
+          f"named it: {named}")
     if args.out or args.strip:
         try:
             images = render.frames(result, camera=args.camera, width=args.width,

@@ -181,7 +181,9 @@ def test_the_video_command_line_shows_objects_anywhere(tmp_path, monkeypatch, ca
     assert show.main(["touch sphere", "--placement", "random", "--seed", "4", "--steps", "4",
                       "--width", "64", "--height", "48", "--out", "touch.gif"]) == 0
     out = capsys.readouterr().out
-    assert "touch sphere, layout 0 (random)" in out and "the robot named it: " in out
+    assert "touch sphere, objects placed at random (seed 4): the TL put the sphere" in out
+    assert re.search(r"at \(-?\d+\.\d, -?\d+\.\d\) cm, truly \(-?\d+\.\d, -?\d+\.\d\) cm", out)
+    assert "left" not in out and "the robot named it: " in out
     with Image.open(tmp_path / "touch.gif") as gif:
         assert gif.n_frames == 4 and gif.size == (64, 48)
 

@@ -107,3 +107,11 @@ print(json.dumps({{"file": str(here), "handler": physics.step_handler(),
         pytest.skip(f"no headless OpenGL backend: {out['rendered']}")
     assert out["rendered"] is True  # the camera sees what the shipped bitmaps hold
     assert out["red"] == out["truth"]
+
+
+def test_the_mjx_backend_imports_without_the_warp_message(tmp_path):
+    # mujoco.mjx prints two "Failed to import warp" lines when its optional Warp backend is
+    # missing; the package never uses it, so its users should not read them
+    out = _run("from grounding_jax.sim import physics\nphysics.import_mjx()\nprint('ok')",
+               tmp_path)
+    assert out == "ok\n", out

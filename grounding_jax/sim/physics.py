@@ -376,9 +376,26 @@ def _mujoco_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
 
 # -------------------------------------------------------------------------------- MJX backend
 @functools.cache
+def import_mjx():
+    """``mujoco.mjx``, without the two "Failed to import warp" lines its import prints when
+    the optional Warp backend is not installed (this package does not use it); anything else
+    the import prints is passed on."""
+    import contextlib
+    import io
+
+    heard = io.StringIO()
+    with contextlib.redirect_stdout(heard):
+        from mujoco import mjx
+    for line in heard.getvalue().splitlines():
+        if not line.startswith(("Failed to import warp", "Failed to import mujoco_warp")):
+            print(line)
+    return mjx
+
+
+@functools.cache
 def mjx_model():
     """The scene as an MJX model (device arrays), made once per process."""
-    from mujoco import mjx
+    mjx = import_mjx()
 
     # concrete arrays even when first asked for inside a trace (e.g. ``jax.eval_shape`` of a
     # trainer): a cached tracer would leak into every later use
@@ -387,7 +404,7 @@ def mjx_model():
 
 
 def _mjx_fns(substeps: int) -> tuple[StepFn, ForwardFn]:
-    from mujoco import mjx
+    mjx = import_mjx()
 
     mx = mjx_model()
     idx = scene.index()
