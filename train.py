@@ -385,7 +385,7 @@ def camera_strip(out: pathlib.Path, key) -> dict:
 def write_results(out: pathlib.Path, result: dict) -> None:
     """A run's metrics.json, metrics.csv and REPORT.md in ``out`` (each written whole), with
     the strips of the robot acting that are in ``out/robot``."""
-    from grounding_jax.core._io import Staged
+    from grounding_jax.core.io import Staged
     from grounding_jax.paper.report import metrics_csv, report
     from grounding_jax.paper.strips import existing_strips
 
@@ -412,7 +412,7 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_
     the saved modules. metrics.json's part, metrics.csv and REPORT.md are rewritten, the
     other parts' results kept."""
     import grounding_jax as gj
-    from grounding_jax.core._io import library_versions
+    from grounding_jax.core.io import library_versions
     from grounding_jax.robot import trained
 
     part = args.only
@@ -476,14 +476,14 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_
 
 
 def main(argv: list[str] | None = None) -> int:
-    from grounding_jax.core import _guard, compiles
+    from grounding_jax.core import compiles, guard
 
     started = time.perf_counter()
     compiles.install()  # before anything compiles: metrics.json counts the run's programs
     before = compiles.tally()
 
     if argv is None:  # the command line: an early Ctrl-C exits cleanly, nothing written yet
-        _guard.quiet_start(["python", "train.py"])
+        guard.quiet_start(["python", "train.py"])
     args = parse_args(argv)
     import grounding_jax as gj
     from grounding_jax.core.checkpoint import CheckpointError
@@ -495,24 +495,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --out: {out} is a file, not a folder; name another", file=sys.stderr)
         return 2
     try:
-        with _guard.handle_interrupts(), _guard.folder_lock(out, "train.py"):
+        with guard.handle_interrupts(), guard.folder_lock(out, "train.py"):
             return _main(args, out, started, before)
-    except (SweepError, CheckpointError, _guard.FolderBusyError) as e:
+    except (SweepError, CheckpointError, guard.FolderBusyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # a full disk, a read-only folder
         print(f"error: {e.filename or out}: {e.strerror or e}; files written before are "
               "kept whole", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, _guard.Interrupted) as e:
+    except (KeyboardInterrupt, guard.Interrupted) as e:
         print(f"\ninterrupted ({'SIGINT' if isinstance(e, KeyboardInterrupt) else e}): the "
               "results and checkpoints written so far are kept; the sweeps continue from "
               "their checkpoints with:\n  "
-              f"{_guard.resume_command(['python', 'train.py'], argv)}", file=sys.stderr,
+              f"{guard.resume_command(['python', 'train.py'], argv)}", file=sys.stderr,
               flush=True)
         if argv is None:  # the command line (not a caller's process): end it now
-            _guard.leave(_guard.exit_code(e))
-        return _guard.exit_code(e)
+            guard.leave(guard.exit_code(e))
+        return guard.exit_code(e)
 
 
 def _read_metrics(path: pathlib.Path) -> dict:
@@ -564,7 +564,7 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
     import jax
 
     import grounding_jax as gj
-    from grounding_jax.core._io import atomic_write_text, library_versions
+    from grounding_jax.core.io import atomic_write_text, library_versions
     from grounding_jax.learn.cacla import CaclaConfig
     from grounding_jax.paper.report import report
     from grounding_jax.paper.strips import existing_strips

@@ -42,7 +42,7 @@ import reference_cacla  # noqa: E402
 from env_throughput import raw_rollout  # noqa: E402
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax.core._io import library_versions  # noqa: E402
+from grounding_jax.core.io import library_versions  # noqa: E402
 from grounding_jax.learn import al
 from grounding_jax.paper import al_experiments
 from grounding_jax.sim import (

@@ -34,7 +34,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
 import grounding_jax as gj  # noqa: E402
-from grounding_jax.core._io import library_versions  # noqa: E402
+from grounding_jax.core.io import library_versions  # noqa: E402
 from grounding_jax.sim import (
     physics,
     scene,  # noqa: E402

@@ -48,12 +48,12 @@ import numpy as np
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 import grounding_jax as gj  # noqa: E402
-from grounding_jax.core._io import (  # noqa: E402
+from grounding_jax.core.checkpoint import CheckpointError  # noqa: E402
+from grounding_jax.core.io import (  # noqa: E402
     atomic_write_text,
     library_versions,
     recover_staged,
 )
-from grounding_jax.core.checkpoint import CheckpointError  # noqa: E402
 
 SWEEP = textwrap.dedent("""
     module = "al"

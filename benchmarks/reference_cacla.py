@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from grounding_jax.core._io import atomic_write_text
+    from grounding_jax.core.io import atomic_write_text
     from grounding_jax.learn import al
     from grounding_jax.paper import al_experiments
 

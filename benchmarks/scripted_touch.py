@@ -37,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.core.io import atomic_write_text, library_versions  # noqa: E402
 from grounding_jax.paper import al_eval, beyond
 from grounding_jax.sim import (
     ik,

@@ -36,7 +36,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from grounding_jax import sweep  # noqa: E402
-from grounding_jax.core._io import atomic_write_text, code_fingerprint  # noqa: E402
+from grounding_jax.core.io import atomic_write_text, code_fingerprint  # noqa: E402
 from grounding_jax.core.jaxcache import enable_compilation_cache  # noqa: E402
 
 #: the strategies, and variants of them with other settings (levers tried)

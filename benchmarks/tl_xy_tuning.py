@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 import grounding_jax as gj  # noqa: E402
-from grounding_jax.core._io import atomic_write_text, library_versions  # noqa: E402
+from grounding_jax.core.io import atomic_write_text, library_versions  # noqa: E402
 from grounding_jax.learn import tl_xy  # noqa: E402
 from grounding_jax.sim import tasks
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from flax import struct
 
-from grounding_jax.core._checks import POSITIVE
+from grounding_jax.core.checks import POSITIVE
 from grounding_jax.learn import al, cacla, learners
 from grounding_jax.sim import env as env_mod
 from grounding_jax.sim import scene
@@ -218,7 +218,7 @@ def test_another_learner_trains_and_evaluates_through_the_seam():
 
 
 def test_a_config_float_rule_refuses_strings_bools_and_non_finite_values():
-    from grounding_jax.core._checks import check_config, integer_at_least
+    from grounding_jax.core.checks import check_config, integer_at_least
 
     @dataclasses.dataclass(frozen=True)
     class Cfg:

@@ -335,3 +335,12 @@ def test_reset_where_starts_a_new_episode_only_where_asked(env_c):
         np.testing.assert_allclose(np.asarray(a)[0], np.asarray(b), rtol=0, atol=1e-6)
         np.testing.assert_array_equal(np.asarray(a)[1], np.asarray(c)[1])
     assert int(out.step[0]) == 0 and int(out.step[1]) == 1
+
+
+def test_the_pointing_poses_are_public_and_scaled_as_the_observation(env_c):
+    poses = np.asarray(env_c.pointing_poses)
+    assert poses.shape == (3, 4) and np.all(np.abs(poses) <= 1)
+    # eq. 1 of the paper, on the stored IK poses (radians) and the paper's joint limits
+    lo, hi = np.radians([[-95, 0, -37, -6], [90, 161, 100, 106]])
+    want = 2 * (np.asarray(scene.pointing_configs()) - lo) / (hi - lo) - 1
+    np.testing.assert_allclose(poses, want, atol=1e-5)

@@ -23,7 +23,7 @@ import pytest
 
 import grounding_jax as gj
 from grounding_jax import sweep
-from grounding_jax.core import _guard
+from grounding_jax.core import guard
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, DamagedStepError
 from grounding_jax.robot import trained
 from grounding_jax.sim import rollout
@@ -247,8 +247,8 @@ def test_a_second_writer_is_refused_before_it_touches_anything(whole, tmp_path):
     folder = w / "out" / "tiny"
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import sys, time
-        from grounding_jax.core import _guard
-        with _guard.folder_lock({str(folder)!r}, "a test holder"):
+        from grounding_jax.core import guard
+        with guard.folder_lock({str(folder)!r}, "a test holder"):
             print("held", flush=True)
             time.sleep(60)
     """)], stdout=subprocess.PIPE, text=True)
@@ -259,7 +259,7 @@ def test_a_second_writer_is_refused_before_it_touches_anything(whole, tmp_path):
         _one_line_error(r, f"pid {holder.pid}", "another writer")
         assert _tree(folder) == before
         r = gj.load(ROOT / "results" / "quick" / "modules")
-        with pytest.raises(_guard.FolderBusyError, match=f"pid {holder.pid}"):
+        with pytest.raises(guard.FolderBusyError, match=f"pid {holder.pid}"):
             trained.save(folder / "m", r.tl.params, r.tl.hyper, r.al.agent, r.al.config,
                          r.an.net, r.an.config, r.env_config)
         assert _tree(folder) == before
@@ -267,7 +267,7 @@ def test_a_second_writer_is_refused_before_it_touches_anything(whole, tmp_path):
         holder.kill()
         holder.wait()
     # the lock dies with its holder: the folder is free again at once
-    with _guard.folder_lock(folder):
+    with guard.folder_lock(folder):
         pass
 
 

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from grounding_jax import sweep
-from grounding_jax.core import _guard
-from grounding_jax.core._io import Staged, recover_staged
+from grounding_jax.core import guard
+from grounding_jax.core.io import Staged, recover_staged
 
 TINY = textwrap.dedent("""
     module = "al"
@@ -159,7 +159,7 @@ def test_sigterm_during_the_renames_leaves_the_new_set_whole(tmp_path, monkeypat
         real(a, b)
 
     monkeypatch.setattr(os, "replace", replace)
-    with _guard.handle_interrupts(), pytest.raises(_guard.Interrupted):
+    with guard.handle_interrupts(), pytest.raises(guard.Interrupted):
         staged.commit()
     monkeypatch.setattr(os, "replace", real)
     assert _set(tmp_path) == {"new"} and _stray(tmp_path) == []

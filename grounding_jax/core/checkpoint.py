@@ -42,8 +42,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from grounding_jax.core import _guard, orbax_quiet
-from grounding_jax.core._io import atomic_write_text, code_fingerprint, library_versions
+from grounding_jax.core import guard, orbax_quiet
+from grounding_jax.core.io import atomic_write_text, code_fingerprint, library_versions
 
 CONFIG_FILE = "config.json"
 MANIFEST = "manifest.json"
@@ -242,7 +242,7 @@ class Checkpointer:
         arrays = array_digests(storable)
         where = self.directory / "steps" / str(step)
         kept = self.latest_step()
-        with _guard.deferred():  # an interrupt lands after the step is sealed, not inside
+        with guard.deferred():  # an interrupt lands after the step is sealed, not inside
             try:
                 with orbax_quiet.stderr_held():
                     self.manager.save(step, args=self._ocp.args.StandardSave(storable))

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from grounding_jax.core._checks import FLAG, Rule, check_config, check_rules, integer_at_least
+from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.learn import cacla, learners
 from grounding_jax.sim import placement as free
 from grounding_jax.sim import rollout, scene, tasks

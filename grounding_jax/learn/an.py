@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._io import atomic_write_text, pyplot, write_figure
+from grounding_jax.core.io import atomic_write_text, pyplot, write_figure
 from grounding_jax.learn import al, cacla, esn, som, tl
 from grounding_jax.sim import scene, tl_data
 from grounding_jax.sim import tasks as tasks_lib

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax.core._checks import Rule, check_config, integer_at_least
+from grounding_jax.core.checks import Rule, check_config, integer_at_least
 from grounding_jax.sim import tasks
 
 N_ACTIONS, N_WORDS = tasks.N_ACTIONS, tasks.N_WORDS  # the paper's task set

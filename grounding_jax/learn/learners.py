@@ -19,7 +19,7 @@ from typing import Any
 import jax
 from flax import struct
 
-from grounding_jax.core._checks import Rule
+from grounding_jax.core.checks import Rule
 
 
 @struct.dataclass

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._checks import Rule, check_config, integer_at_least
+from grounding_jax.core.checks import Rule, check_config, integer_at_least
 
 #: What each count of :class:`SOMConfig` accepts (its ``__post_init__`` reads it).
 CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in ("rows", "cols", "epochs")}

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax.core._checks import (
+from grounding_jax.core.checks import (
     POSITIVE,
     UNIT_CLOSED,
     Rule,

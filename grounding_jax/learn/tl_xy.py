@@ -44,7 +44,7 @@ import numpy as np
 import optax
 from flax import struct
 
-from grounding_jax.core._checks import (
+from grounding_jax.core.checks import (
     POSITIVE,
     UNIT_OPEN_LEFT,
     Rule,
@@ -342,7 +342,7 @@ def run(key: jax.Array, out: pathlib.Path, seeds: int = 3, config: XYConfig = XY
     """
     import time
 
-    from grounding_jax.core._io import pyplot, write_figure
+    from grounding_jax.core.io import pyplot, write_figure
 
     data = load()
     if not 0 < scenes <= len(data.layout):

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._io import atomic_write_text, pyplot, write_figure
+from grounding_jax.core.io import atomic_write_text, pyplot, write_figure
 from grounding_jax.learn import al, cacla
 from grounding_jax.paper.al_eval import (
     ALL_LAYOUTS,

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._io import pyplot, write_figure
+from grounding_jax.core.io import pyplot, write_figure
 from grounding_jax.learn import tl
 from grounding_jax.sim import scene, tl_data
 

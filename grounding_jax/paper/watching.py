@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._io import pyplot, write_figure
+from grounding_jax.core.io import pyplot, write_figure
 from grounding_jax.learn import al
 from grounding_jax.paper import al_eval
 from grounding_jax.robot import observer

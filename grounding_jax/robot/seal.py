@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from grounding_jax.core import _guard
+from grounding_jax.core import guard
 from grounding_jax.core.checkpoint import CheckpointError
 from grounding_jax.robot import trained
 
@@ -17,7 +17,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         trained.seal(args.directory)
-    except (CheckpointError, _guard.FolderBusyError, OSError) as e:
+    except (CheckpointError, guard.FolderBusyError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"sealed {args.directory}: its files and arrays are checked on every load from now")

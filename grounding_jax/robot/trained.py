@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core import _guard
+from grounding_jax.core import guard
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.learn import al, cacla, esn, learners, tl, tl_xy
 from grounding_jax.robot import observer
@@ -622,7 +622,7 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
             config["free"]["an"] = dataclasses.asdict(free_modules["esn_config"])
             tree["free"]["an"] = free_modules["net"]
     directory.parent.mkdir(parents=True, exist_ok=True)
-    with _guard.folder_lock(directory.parent, f"saving {directory.name}"):
+    with guard.folder_lock(directory.parent, f"saving {directory.name}"):
         tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
         if tmp.exists():
             shutil.rmtree(tmp)
@@ -693,7 +693,7 @@ def seal(directory: str | pathlib.Path) -> None:
     if stored["kind"] != KIND:
         raise CheckpointError(f"{directory}: holds a {stored['kind']!r} checkpoint, not "
                               f"trained modules ({KIND!r})")
-    with _guard.folder_lock(directory.parent, f"sealing {directory.name}"), Checkpointer(
+    with guard.folder_lock(directory.parent, f"sealing {directory.name}"), Checkpointer(
             directory, KIND, stored["config"]) as ck:
         step = ck.latest_step()
         if step is None:

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax.core._checks import (
+from grounding_jax.core.checks import (
     FINITE,
     NON_NEGATIVE,
     POSITIVE,
@@ -347,6 +347,11 @@ class Env:
 
     ``reset`` and ``step`` are pure functions of their arguments and may be used under
     ``jax.jit``, ``jax.vmap`` and ``jax.lax.scan`` on both backends.
+
+    Attributes:
+        pointing_poses: the stored pointing pose of each slot (left, middle, right), its 4
+            joints scaled to [-1, 1] as the observation holds them: `[3, 4]`, what the point
+            reward measures the joints against.
     """
 
     def __init__(self, config: EnvConfig = EnvConfig()) -> None:
@@ -362,7 +367,7 @@ class Env:
         slot_shape = np.argsort(scene.layout_shape_slots(), axis=1)  # [36, position] -> shape
         self._slot_shape = jnp.asarray(slot_shape, jnp.int32)
         self._object_pos = jnp.asarray(scene.object_positions(), jnp.float32)
-        self._pointing = scale_joints(jnp.asarray(scene.pointing_configs(), jnp.float32))
+        self.pointing_poses = scale_joints(jnp.asarray(scene.pointing_configs(), jnp.float32))
         self._range = jnp.asarray(idx.joint_range, jnp.float32)
         self._home_scaled = scale_joints(jnp.asarray(np.radians(scene.HOME_POSE_DEG),
                                                      jnp.float32))
@@ -414,7 +419,7 @@ class Env:
         target_shape = self._slot_shape[task.layout, task.position]
         target_xy = object_start[target_shape, :2]
         if task.placement is None:
-            pose = self._pointing[task.position]
+            pose = self.pointing_poses[task.position]
         else:  # the pointing map, interpolated at where the target is meant to be
             pose = scale_joints(free.pointing_pose(target_xy))
         if task.placement is None and self.tasks is tasks.PAPER:

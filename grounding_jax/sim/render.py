@@ -151,7 +151,7 @@ def write_png(path: str | os.PathLike, image: np.ndarray) -> pathlib.Path:
     whole or not at all."""
     import cv2
 
-    from grounding_jax.core._io import atomic_write_bytes
+    from grounding_jax.core.io import atomic_write_bytes
 
     ok, png = cv2.imencode(".png", np.ascontiguousarray(np.asarray(image)[..., ::-1]))
     if not ok:

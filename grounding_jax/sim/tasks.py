@@ -40,7 +40,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from grounding_jax.core._checks import Rule, check_config
+from grounding_jax.core.checks import Rule, check_config
 
 POSITIONS = ("left", "middle", "right")
 SHAPES = ("box", "cylinder", "sphere")

@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from grounding_jax.core._checks import require_int
+from grounding_jax.core.checks import require_int
 from grounding_jax.sim import scene, tasks
 
 BITMAPS_NPZ = scene.ASSETS / "tl_bitmaps.npz"

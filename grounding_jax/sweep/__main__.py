@@ -7,7 +7,7 @@ package's own adapters (AL, TL) reach the runner through their entry points.
 from __future__ import annotations
 
 if __name__ == "__main__":  # before the heavy imports: an early Ctrl-C exits cleanly
-    from grounding_jax.core import _guard as _early
+    from grounding_jax.core import guard as _early
 
     _early.quiet_start(["python", "-m", "grounding_jax.sweep"])
 
@@ -15,7 +15,7 @@ import argparse
 import pathlib
 import sys
 
-from grounding_jax.core import _guard
+from grounding_jax.core import guard
 from grounding_jax.core.checkpoint import CheckpointError
 from grounding_jax.sweep.runner import EXECUTORS, run
 from grounding_jax.sweep.spec import SweepError, adapter, load_spec
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
 
     enable_compilation_cache()
     try:
-        with _guard.handle_interrupts():
+        with guard.handle_interrupts():
             if args.executor not in EXECUTORS:
                 raise SweepError(f"--executor: unknown value {args.executor!r}; accepted "
                                  f"values: {EXECUTORS}")
@@ -49,19 +49,19 @@ def main(argv: list[str] | None = None) -> int:
             summary = run(spec, args.out, resume=args.resume, overwrite=args.overwrite,
                           executor=args.executor, ray_address=args.ray_address,
                           seed=args.seed, show_progress=not args.no_progress)
-    except (SweepError, CheckpointError, _guard.FolderBusyError) as e:
+    except (SweepError, CheckpointError, guard.FolderBusyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # a disk or folder fault outside the paths above
         print(f"error: {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, _guard.Interrupted) as e:
+    except (KeyboardInterrupt, guard.Interrupted) as e:
         print(f"\ninterrupted ({'SIGINT' if isinstance(e, KeyboardInterrupt) else e}): the "
               "newest complete checkpoint of each group is kept; continue with:\n  "
               f"{resume_command(argv)}", file=sys.stderr, flush=True)
         if argv is None:  # the command line (not a caller's process): end it now
-            _guard.leave(_guard.exit_code(e))
-        return _guard.exit_code(e)
+            guard.leave(guard.exit_code(e))
+        return guard.exit_code(e)
     folder = pathlib.Path(args.out) / spec.name
     if spec.search != "grid":
         print(search_lines(spec, summary))
@@ -112,7 +112,7 @@ def search_lines(spec, summary: dict) -> str:
 def resume_command(argv: list[str] | None = None) -> str:
     """The command line that continues this one: the same arguments with ``--resume``
     instead of ``--overwrite``."""
-    return _guard.resume_command(["python", "-m", "grounding_jax.sweep"], argv)
+    return guard.resume_command(["python", "-m", "grounding_jax.sweep"], argv)
 
 
 

@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core import _guard
-from grounding_jax.core._io import Staged, code_fingerprint, library_versions
+from grounding_jax.core import guard
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError
+from grounding_jax.core.io import Staged, code_fingerprint, library_versions
 from grounding_jax.sweep.batching import (
     MEMORY_SHARE,
     assemble,
@@ -238,7 +238,7 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
     check_size(spec)
     with contextlib.ExitStack() as stack:
         try:
-            stack.enter_context(_guard.folder_lock(folder, f"sweep {spec.name}"))
+            stack.enter_context(guard.folder_lock(folder, f"sweep {spec.name}"))
         except OSError as e:
             hint = ("free some space on its disk" if e.errno in _FULL else
                     "name a writable folder with --out")

@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core._io import atomic_write_text, code_fingerprint, library_versions
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError
+from grounding_jax.core.io import atomic_write_text, code_fingerprint, library_versions
 from grounding_jax.sweep.batching import assemble, batch_sharding, chunk_stops, restore_to_resume
 from grounding_jax.sweep.space import perturb, sample
 from grounding_jax.sweep.spec import SweepError, SweepSpec, adapter, module_config

@@ -59,7 +59,7 @@ from collections.abc import Callable, Mapping, Sequence
 from importlib import metadata
 from typing import Any
 
-from grounding_jax.core._checks import FLOAT32_MAX, Rule
+from grounding_jax.core.checks import FLOAT32_MAX, Rule
 
 
 class SweepError(ValueError):

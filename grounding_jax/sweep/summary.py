@@ -8,7 +8,7 @@ import pathlib
 
 import numpy as np
 
-from grounding_jax.core._io import Staged, pyplot, write_figure
+from grounding_jax.core.io import Staged, pyplot, write_figure
 from grounding_jax.sweep.spec import METRICS, SweepSpec, adapter
 
 

@@ -13,7 +13,7 @@ import platform
 import re
 from collections.abc import Iterator
 
-from grounding_jax.core import _guard
+from grounding_jax.core import guard
 
 
 def _remove_quietly(path: pathlib.Path) -> None:
@@ -139,7 +139,7 @@ class Staged:
         journal = self.folder / f".staged-{os.getpid()}.journal"
         rel = [[t.relative_to(self.folder).as_posix(), f.relative_to(self.folder).as_posix()]
                for t, f in self._pending]
-        with _guard.deferred():
+        with guard.deferred():
             try:
                 atomic_write_text(journal, json.dumps(rel))
             except BaseException:
