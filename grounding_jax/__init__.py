@@ -2,7 +2,7 @@
 
 Importing the package changes no JAX setting. ``train.py``, the sweep and experiment CLIs and
 the benchmarks switch on JAX's persistent compilation cache with
-:func:`enable_compilation_cache`; call it yourself to share compiles between your runs.
+`enable_compilation_cache`; call it yourself to share compiles between your runs.
 """
 
 from __future__ import annotations

@@ -57,6 +57,10 @@ def test_the_docs_build_strictly(tmp_path):
     assert (tmp_path / "site" / "api" / "index.html").is_file()
     api = (tmp_path / "site" / "api" / "index.html").read_text()
     assert "make_env" in api and "Robot" in api and "write_video" in api
+    # docstrings are Markdown: no reStructuredText role reaches a page as literal text
+    raw = {p.name: re.findall(r":(?:func|class|meth|mod|data|attr|exc|obj):", p.read_text())
+           for p in (tmp_path / "site").rglob("*.html")}
+    assert not {k: v for k, v in raw.items() if v}, raw
 
 
 def _api_modules() -> list[str]:

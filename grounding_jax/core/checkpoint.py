@@ -17,12 +17,12 @@ Layout of a checkpoint folder::
 orbax checksums only its own index, not the array data, so a flipped byte in an array file
 restores silently; the manifest catches it. A step is *intact* when its manifest is whole,
 names this config.json, every file matches, and every restored array has the bytes that were
-saved. :meth:`Checkpointer.restore` refuses anything else with a :class:`DamagedStepError`
-that names the step, the arrays and the files; :meth:`Checkpointer.restore_latest` can fall
+saved. `Checkpointer.restore` refuses anything else with a `DamagedStepError`
+that names the step, the arrays and the files; `Checkpointer.restore_latest` can fall
 back to the newest intact step (a resumed sweep does, and says so; ``load`` does not).
 
 A folder is only ever opened for the config it was written with, by the package version that
-wrote it; anything else is refused with :class:`CheckpointError` before a byte is written.
+wrote it; anything else is refused with `CheckpointError` before a byte is written.
 PRNG keys are stored as their raw ``key_data`` (uint32) and wrapped again on restore.
 """
 
@@ -226,7 +226,7 @@ class Checkpointer:
                       reverse=True)
 
     def latest_step(self) -> int | None:
-        """The newest committed step, or None (see :meth:`restore_latest` for the newest
+        """The newest committed step, or None (see `restore_latest` for the newest
         intact one)."""
         steps = self.steps()
         return steps[0] if steps else None
@@ -285,8 +285,8 @@ class Checkpointer:
              "arrays": array_digests(tree), "files": _file_digests(where)}), indent=1) + "\n")
 
     def check_sealed(self, step: int) -> None:
-        """Raise :class:`DamagedStepError` unless ``step`` has a whole manifest that names
-        this folder's config.json (a cheap check before :meth:`restore`'s full one)."""
+        """Raise `DamagedStepError` unless ``step`` has a whole manifest that names
+        this folder's config.json (a cheap check before `restore`'s full one)."""
         self._manifest(step)
 
     def _manifest(self, step: int) -> dict:
@@ -379,7 +379,7 @@ class Checkpointer:
         """The newest step and its tree, or None when there is no step at all.
 
         Args:
-            like: as for :meth:`restore`.
+            like: as for `restore`.
             fallback: a damaged newest step is skipped for the newest intact one (said
                 through ``say``); else it is refused.
             say: where the fallback is reported (default: standard error).

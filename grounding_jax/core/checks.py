@@ -1,5 +1,5 @@
 """Input checks shared by the configs and the sweep runner: clear ValueErrors that name the
-field. Each dataclass keeps one table of :class:`Rule` s -- traced values in ``HYPER_RULES`` /
+field. Each dataclass keeps one table of `Rule` s -- traced values in ``HYPER_RULES`` /
 ``PARAM_RULES`` (read by its ``validate``), static config fields in ``CONFIG_RULES`` (read by
 its ``__post_init__``) -- and the sweep runner's field checks read the same tables."""
 

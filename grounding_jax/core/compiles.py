@@ -91,6 +91,6 @@ def install() -> None:
 
 
 def tally() -> Tally:
-    """The programs built since :func:`install` was first called."""
+    """The programs built since `install` was first called."""
     with _lock:
         return Tally(sum(_names.values()), _hits, dict(_names), dict(_stage_s), dict(_seconds))

@@ -1,12 +1,12 @@
 """One writer per output folder, and interrupts that end a run cleanly.
 
-:func:`folder_lock` holds an OS lock (``fcntl.flock`` on ``<folder>/.lock``) while a sweep,
-``train.py`` or :func:`grounding_jax.robot.trained.save` writes to a folder; the kernel releases it
+`folder_lock` holds an OS lock (``fcntl.flock`` on ``<folder>/.lock``) while a sweep,
+``train.py`` or `grounding_jax.robot.trained.save` writes to a folder; the kernel releases it
 when the process dies, however it dies, so a killed run never leaves a stale lock. A second
 writer is refused before it touches anything, with the holder's pid.
 
-:func:`handle_interrupts` turns SIGTERM into :class:`Interrupted` (SIGINT already raises
-``KeyboardInterrupt``) for the command-line tools; :func:`deferred` holds both signals back
+`handle_interrupts` turns SIGTERM into `Interrupted` (SIGINT already raises
+``KeyboardInterrupt``) for the command-line tools; `deferred` holds both signals back
 while a checkpoint is being sealed, so an interrupt never lands between orbax's commit and the
 manifest that makes a step usable.
 """
@@ -104,7 +104,7 @@ def _handler(signum, frame) -> None:
 @contextlib.contextmanager
 def deferred() -> Iterator[None]:
     """SIGINT/SIGTERM received inside the block take effect when it ends (only while
-    :func:`handle_interrupts` is on; otherwise the block changes nothing)."""
+    `handle_interrupts` is on; otherwise the block changes nothing)."""
     _deferring[0] += 1
     try:
         yield
@@ -119,7 +119,7 @@ def deferred() -> Iterator[None]:
 @contextlib.contextmanager
 def handle_interrupts() -> Iterator[None]:
     """For a command-line tool's main: SIGINT raises ``KeyboardInterrupt`` and SIGTERM
-    :class:`Interrupted`, each deferred while a checkpoint is sealed (:func:`deferred`)."""
+    `Interrupted`, each deferred while a checkpoint is sealed (`deferred`)."""
     old = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
@@ -144,7 +144,7 @@ def quiet_start(prog: list[str]) -> None:
     """A command-line tool's first call, before its heavy imports: SIGINT or SIGTERM while it
     starts (nothing written yet) exits at once with 130 or 143 and the command to run again,
     instead of a ``KeyboardInterrupt`` traceback from inside an import. Its main then takes
-    over with :func:`handle_interrupts`."""
+    over with `handle_interrupts`."""
     import sys
 
     def handler(signum, frame) -> None:

@@ -39,7 +39,7 @@ def atomic_write_bytes(path: pathlib.Path, data: bytes) -> None:
 
 
 def atomic_write_text(path: pathlib.Path, text: str) -> None:
-    """:func:`atomic_write_bytes` of UTF-8 text."""
+    """`atomic_write_bytes` of UTF-8 text."""
     atomic_write_bytes(path, text.encode())
 
 
@@ -100,12 +100,12 @@ def recover_staged(folder: pathlib.Path) -> list[str]:
 
 class Staged:
     """Several result files that replace their earlier versions together: each is written to
-    a temporary beside its final name, and only :meth:`commit` (after every write succeeded)
+    a temporary beside its final name, and only `commit` (after every write succeeded)
     renames them into place, so a full disk mid-way leaves the earlier set whole.
 
     The renames happen with SIGINT/SIGTERM held back (they take effect once the new set is in
     place), after a journal of them is written: a writer killed mid-commit has its commit
-    completed by the next :class:`Staged` on the folder (:func:`recover_staged`), which also
+    completed by the next `Staged` on the folder (`recover_staged`), which also
     deletes the staged files of writers that died before committing."""
 
     def __init__(self, folder: pathlib.Path) -> None:

@@ -28,7 +28,7 @@ def _echo_of_a_failed_read(unraisable) -> bool:
 
 def _quiet_closed_loop(previous: Callable) -> Callable:
     """An unraisable-exception hook that drops the echoes of a failed read
-    (:func:`_echo_of_a_failed_read`) and passes everything else to the previous hook."""
+    (`_echo_of_a_failed_read`) and passes everything else to the previous hook."""
 
     def hook(unraisable) -> None:
         if not _echo_of_a_failed_read(unraisable):
@@ -62,7 +62,7 @@ _ECHO_FILTER = _EchoFilter()
 
 def quiet_failed_io() -> None:
     """After a failed orbax write or read, its echoes are dropped from now on: the unraisable
-    exceptions of its unfinished coroutines (:func:`_echo_of_a_failed_read`), its helper
+    exceptions of its unfinished coroutines (`_echo_of_a_failed_read`), its helper
     threads' log records and their "Event loop is closed" exceptions."""
     import logging
     import threading

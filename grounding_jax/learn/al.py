@@ -3,11 +3,11 @@
 ``make_train(config) -> train(key, hp) -> (agent, metrics)``; ``vmap`` ``train`` over keys and
 hyperparameters for a batch of agents (on the C MuJoCo backend the batch's physics goes to
 ``mujoco.rollout`` in one call per step). By default each agent steps through its episodes
-with auto-reset (:func:`make_steps`: a finished episode's slot starts the agent's next episode
-at the next step); the lockstep loop (:func:`make_episodes`: episodes side by side, each
+with auto-reset (`make_steps`: a finished episode's slot starts the agent's next episode
+at the next step); the lockstep loop (`make_episodes`: episodes side by side, each
 ``episode_length`` steps long) gives the same result, bit for bit, more slowly. An agent
 trains bit for bit the same alone or in any batch. The trainer drives any
-:class:`~grounding_jax.learn.learners.Learner` through its ``init``/``act``/``update``; the learner
+`Learner` through its ``init``/``act``/``update``; the learner
 is the one whose config ``ALConfig.learner`` holds (CACLA, the paper's, by default). The
 paper's schedule (150 phase-1 + 300 phase-2 episodes) and the no-tricks schedule (plain CACLA
 from the start, ~2000 episodes) are configs.
@@ -42,10 +42,10 @@ SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
 
 
 #: Where training episodes put the objects: the paper's slots, or anywhere
-#: (:func:`placement.sample`, one placement per episode).
+#: (`placement.sample`, one placement per episode).
 PLACEMENTS = ("fixed", "random")
 
-#: What each count of :class:`ALConfig` accepts (its ``__post_init__`` and the sweep runner
+#: What each count of `ALConfig` accepts (its ``__post_init__`` and the sweep runner
 #: read it).
 CONFIG_RULES: dict[str, Rule] = {"phase1_episodes": integer_at_least(0),
                                  "phase2_episodes": integer_at_least(0)}
@@ -58,7 +58,7 @@ class ALConfig:
     Attributes:
         env: the env's static config (backend, substeps, episode length).
         learner: the learner's static config (network sizes, ...); its type names the
-            learner (default: CACLA's :class:`cacla.CaclaConfig`).
+            learner (default: CACLA's `cacla.CaclaConfig`).
         phase1_episodes: episodes with the phase-1 actor rule (reward rose).
         phase2_episodes: episodes of plain CACLA after them.
         actions: action indices to draw tasks from (None, the default: every action of the
@@ -101,7 +101,7 @@ class ALConfig:
 
     @classmethod
     def from_schedule(cls, schedule: str, **kwargs: Any) -> ALConfig:
-        """A config with one of the named :data:`SCHEDULES` (``"paper"``, ``"no_tricks"``)."""
+        """A config with one of the named `SCHEDULES` (``"paper"``, ``"no_tricks"``)."""
         if schedule not in SCHEDULES:
             raise ValueError(f"schedule: unknown value {schedule!r}; accepted values: "
                              f"{tuple(SCHEDULES)}")
@@ -114,7 +114,7 @@ class ALConfig:
 
     @property
     def learning(self) -> learners.Learner:
-        """The :class:`~grounding_jax.learn.learners.Learner` that ``learner`` configures."""
+        """The `Learner` that ``learner`` configures."""
         return learners.for_config(self.learner)
 
 
@@ -123,7 +123,7 @@ class ALHyper:
     """Traced hyperparameters: the learner's, the env's, and the trainer's own.
 
     ``learner``: the learner's traced hyperparameters (their type must match the learner of
-    ``ALConfig.learner``; default CACLA's :class:`cacla.CaclaHyper`).
+    ``ALConfig.learner``; default CACLA's `cacla.CaclaHyper`).
 
     ``executed_target``: 1.0 -- the learner is given the action the arm executed (the
     explored action after the servo target is clipped at the joint limits, and limited to the
@@ -137,14 +137,14 @@ class ALHyper:
     executed_target: Any = 0.0
 
 
-#: What each of :class:`ALHyper`'s own fields accepts (``validate`` and the sweep runner read
+#: What each of `ALHyper`'s own fields accepts (``validate`` and the sweep runner read
 #: it; the learner's and the env's fields have their own tables).
 HYPER_RULES: dict[str, Rule] = {"executed_target": FLAG}
 
 
 def hyper(learner: learners.Learner | None = None, **fields: Any) -> ALHyper:
-    """An :class:`ALHyper` from flat field names: each goes to the learner's hyperparameters
-    (default CACLA's), the env's :class:`EnvParams` or :class:`ALHyper` itself, by name.
+    """An `ALHyper` from flat field names: each goes to the learner's hyperparameters
+    (default CACLA's), the env's `EnvParams` or `ALHyper` itself, by name.
 
     Raises:
         ValueError: a name that none of the three has (naming it and the accepted ones).
@@ -189,7 +189,7 @@ def executed_action(q: jax.Array, ctrl: jax.Array, action_scale) -> jax.Array:
     return jnp.clip((scale_joints(ctrl) - scale_joints(q)) / action_scale, -1.0, 1.0)
 
 
-#: The trainer's loops (:func:`make_episodes` and :func:`make_steps`).
+#: The trainer's loops (`make_episodes` and `make_steps`).
 LOOPS = ("auto_reset", "lockstep")
 
 
@@ -265,11 +265,11 @@ def make_episodes(config: ALConfig):
     """Build ``run(agent, keys, plan, hp) -> (agent, metrics)``: one episode per key, in
     order, under ``lax.scan`` -- the lockstep loop: every episode runs ``episode_length`` steps,
     those after its end masked (batched, a finished episode's slot idles until the longest
-    episode of the batch is done). ``plan`` (from :func:`schedule`) holds per-episode arrays:
+    episode of the batch is done). ``plan`` (from `schedule`) holds per-episode arrays:
     ``phase1`` (1.0 where the phase-1 rule applies) and ``progress`` (0 -> 1 over the run).
 
     Training in chunks of episodes (a host loop with progress and checkpoints) calls this on
-    consecutive slices of the keys; the result equals one :func:`make_train` call.
+    consecutive slices of the keys; the result equals one `make_train` call.
     """
     parts = _Parts(config)
     env, lrn = parts.env, parts.lrn
@@ -296,13 +296,13 @@ def make_episodes(config: ALConfig):
 
 
 def make_steps(config: ALConfig):
-    """Build ``run(agent, keys, plan, hp) -> (agent, metrics)`` like :func:`make_episodes`,
+    """Build ``run(agent, keys, plan, hp) -> (agent, metrics)`` like `make_episodes`,
     step by step with auto-reset: a ``lax.while_loop`` over RL steps in which an episode that
     ends is followed, at the next step, by the agent's next episode.
 
     Batched with ``vmap``, each agent runs its own episodes at its own pace (its own episode
     counter picks its phase and decays), so every physics call carries every agent that still
-    has episodes to run. The result is the same as :func:`make_episodes`' -- the same draws,
+    has episodes to run. The result is the same as `make_episodes`' -- the same draws,
     the same exploration keys, the same steps -- only the idle steps are gone.
     """
     parts = _Parts(config)
@@ -370,13 +370,13 @@ def make_pieces(config: ALConfig, loop: str = "auto_reset"):
     own episode -- what a search needs to stop a run, start another in its place, or copy an
     agent into another run at a chunk's end without compiling again.
 
-    ``start(keys, hp) -> state`` splits each key as :func:`make_train` does: ``state`` is
+    ``start(keys, hp) -> state`` splits each key as `make_train` does: ``state`` is
     ``{"agent": [agents], "keys": one key per episode [agents, episodes], "done": episodes
     trained [agents]}``. ``advance(state, hp, episodes) -> (state, metrics)`` trains every
     agent ``episodes`` more of its own episodes (its phase and decays follow its own count;
-    ``hp`` per agent) and returns the metrics ``[agents, episodes]`` of :func:`make_train`.
+    ``hp`` per agent) and returns the metrics ``[agents, episodes]`` of `make_train`.
     An agent trained to the end this way has seen the same episodes as one trained by
-    :func:`make_train` with its key.
+    `make_train` with its key.
     """
     _check_loop(loop)
 
@@ -404,7 +404,7 @@ def _hp_layout(hp: ALHyper) -> tuple[tuple, Any]:
 @functools.lru_cache(maxsize=16)
 def _batched_pieces(config: ALConfig, hp_axes: tuple, hp_treedef, episodes: int, loop: str):
     """``jit(vmap(...))`` of ``episodes`` episodes of each agent from its own count,
-    cached like :func:`_batched_episodes`."""
+    cached like `_batched_episodes`."""
     run = _loop_maker(loop)(config)
 
     def one(agent, keys, done, hp):
@@ -427,8 +427,8 @@ def make_train(config: ALConfig, loop: str = "auto_reset"):
 
     Args:
         config: static config.
-        loop: ``"auto_reset"`` (:func:`make_steps`, the default) or ``"lockstep"``
-            (:func:`make_episodes`); both give the same agent and metrics, bit for bit.
+        loop: ``"auto_reset"`` (`make_steps`, the default) or ``"lockstep"``
+            (`make_episodes`); both give the same agent and metrics, bit for bit.
 
     Returns:
         ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
@@ -458,7 +458,7 @@ def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef, loop: str = 
 
 @functools.lru_cache(maxsize=16)
 def _batched_schedule(config: ALConfig, hp_axes: tuple, hp_treedef):
-    """``jit(vmap(schedule))``, cached like :func:`_batched_episodes`. Run eagerly instead,
+    """``jit(vmap(schedule))``, cached like `_batched_episodes`. Run eagerly instead,
     its random draws would compile one small XLA program per op and shape (~20 s of a quick
     profile)."""
     axes = jax.tree.unflatten(hp_treedef, hp_axes)
@@ -474,7 +474,7 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
 
     Args:
         config: static config.
-        keys: one key per agent (split once, as in :func:`make_train`).
+        keys: one key per agent (split once, as in `make_train`).
         hp: hyperparameters; leaves with a leading axis are per agent.
         stops: episode counts at which a chunk ends.
         on_stop: ``on_stop(episode, agents, metrics)`` after each chunk, with the metrics so
@@ -484,7 +484,7 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
             ``episode`` (the result is bit-identical to an uninterrupted run).
         sharding: a ``jax.sharding.Sharding`` of the agent axis (e.g. over local devices);
             None keeps the default device.
-        loop: ``"auto_reset"`` (default) or ``"lockstep"``, as in :func:`make_train`.
+        loop: ``"auto_reset"`` (default) or ``"lockstep"``, as in `make_train`.
 
     Returns:
         (agents, metrics [agents, episodes]) -- equal to ``vmap(make_train(config))``.

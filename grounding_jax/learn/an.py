@@ -36,7 +36,7 @@ DEFAULT_SOM = som.SOMConfig()
 
 def train_tl(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
              ) -> tuple[tl.TLParams, tl.TLHyper, np.ndarray, float]:
-    """Train one TL (H=50, n=20, the shipped :data:`tl.TUNED` input balance and rate).
+    """Train one TL (H=50, n=20, the shipped `tl.TUNED` input balance and rate).
 
     Returns:
         (parameters, its hyperparameters, hidden activations for the 216 configurations
@@ -55,7 +55,7 @@ def train_tl(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
 
 def tl_hidden(key: jax.Array, epochs: int, data: tl_data.TLData | None = None
               ) -> tuple[np.ndarray, float]:
-    """Train one TL (as :func:`train_tl`) and return its hidden activations for the 216
+    """Train one TL (as `train_tl`) and return its hidden activations for the 216
     configurations ``[216, 50]`` and its test accuracy."""
     return train_tl(key, epochs, data)[2:]
 
@@ -71,7 +71,7 @@ def actor_sequences(agent: cacla.Agent, key: jax.Array, tasks: Task, steps: int,
 
 @functools.lru_cache(maxsize=8)
 def _sequences(config: EnvConfig, steps: int):
-    """The jitted batch of :func:`actor_sequences` for one env config and episode length
+    """The jitted batch of `actor_sequences` for one env config and episode length
     (the agent and params are arguments, not constants: one compile serves every call)."""
     evaluate = al.make_eval(config, steps)
     return jax.jit(jax.vmap(lambda a, k, t, p: evaluate(a, k, t, p)[2],
@@ -254,7 +254,7 @@ def run(key: jax.Array, out, agent: cacla.Agent, seeds: int, tl_epochs: int, ste
 
     Returns:
         (results, the trained modules of seed 0: ``tl_params``, ``tl_hyper``, ``net``, the
-        ESN with its readout, and ``esn_config`` -- what :func:`grounding_jax.robot.trained.save`
+        ESN with its readout, and ``esn_config`` -- what `grounding_jax.robot.trained.save`
         stores).
     """
     out = pathlib.Path(out)

@@ -15,9 +15,9 @@ Actions share one actor and one critic (the paper), or some or all of them learn
 own (static ``CaclaConfig.heads``: the leaves get an action axis, the observation's action
 one-hot picks the slot). Network sizes are static (``CaclaConfig``); learning rates, sigma,
 gamma, the phase switch, the decays and the hidden units in use are traced (``CaclaHyper``).
-A smaller hidden layer can still be traced: :func:`init` leaves the units past ``*_units`` at
-zero weights, where they stay (see there). :data:`LEARNER` is CACLA behind the AL trainer's
-learner seam (:mod:`grounding_jax.learn.learners`).
+A smaller hidden layer can still be traced: `init` leaves the units past ``*_units`` at
+zero weights, where they stay (see there). `LEARNER` is CACLA behind the AL trainer's
+learner seam (`grounding_jax.learn.learners`).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from grounding_jax.learn import learners
 from grounding_jax.learn.learners import Transition
 from grounding_jax.sim import tasks
 
-#: What each size of :class:`CaclaConfig` accepts (its ``__post_init__`` and the sweep
+#: What each size of `CaclaConfig` accepts (its ``__post_init__`` and the sweep
 #: runner read it).
 CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in (
     "actor_hidden", "critic_hidden", "max_var_repeats")}
@@ -59,14 +59,14 @@ class CaclaConfig:
         critic_hidden: critic hidden units (paper: 20).
         var: use CACLA+Var (off by default, as in the paper).
         max_var_repeats: cap on the CACLA+Var repetitions of one actor update.
-        task_set: name of the :class:`tasks.TaskSet` whose observation and action the
+        task_set: name of the `tasks.TaskSet` whose observation and action the
             networks take and give (their input and output sizes follow from it).
         heads: which actions share an actor-critic: ``()`` -- one actor and one critic
             for every action, told the action by its one-hot input (the paper); else one
             network index per action, e.g. ``(0, 1, 1)``: point learns alone, touch and push
             share a second pair. Every action keeps a slot (the leaves get an action axis;
             actions that share a network hold equal copies, updated together) and the
-            observation's action one-hot picks it (see :func:`head`).
+            observation's action one-hot picks it (see `head`).
     """
 
     actor_hidden: int = 40
@@ -115,13 +115,13 @@ class CaclaHyper:
         gamma: discount factor (paper's best: 0).
         phase1: 1.0 -- update the actor when the reward rose (paper's phase 1);
             0.0 -- when delta > 0 (plain CACLA, phase 2). The AL trainer sets it per episode
-            from its schedule (:func:`at_episode`).
+            from its schedule (`at_episode`).
         var_beta: rate of the running variance of delta (CACLA+Var only).
         actor_lr_decay, critic_lr_decay, sigma_decay: the value at training progress ``x``
             (0 at the first episode, 1 at the last) is ``v * decay ** x`` -- geometric from
             ``v`` to ``v * decay``; 1.0 keeps it constant (the paper).
         actor_units, critic_units: hidden units in use, at most the config's sizes (0: all of
-            them); the rest stay at zero weights (:func:`init`), so a sweep over hidden sizes
+            them); the rest stay at zero weights (`init`), so a sweep over hidden sizes
             runs as one batch at the largest size.
         actor_init_scale: factor on the actor's initial output weights (1.0: the usual
             +-1/sqrt(fan-in)); smaller values start from near-zero actions -- the paper's
@@ -142,7 +142,7 @@ class CaclaHyper:
     actor_init_scale: Any = 1.0
 
 
-#: What each field of :class:`CaclaHyper` accepts (``validate`` and the sweep runner read it).
+#: What each field of `CaclaHyper` accepts (``validate`` and the sweep runner read it).
 HYPER_RULES: dict[str, Rule] = {
     "actor_lr": POSITIVE, "critic_lr": POSITIVE, "sigma": POSITIVE, "gamma": UNIT_CLOSED,
     "phase1": FLAG, "var_beta": UNIT_OPEN_LEFT,
@@ -232,7 +232,7 @@ def init(key: jax.Array, config: CaclaConfig = CaclaConfig(), actor_units=None,
 
 
 def start(key: jax.Array, config: CaclaConfig, hp: CaclaHyper) -> Agent:
-    """A fresh agent for training: :func:`init` with ``hp``'s hidden units in use and the
+    """A fresh agent for training: `init` with ``hp``'s hidden units in use and the
     actor's output weights times ``hp.actor_init_scale``."""
     agent = init(key, config,
                  jnp.where(hp.actor_units > 0, hp.actor_units, config.actor_hidden),
@@ -251,7 +251,7 @@ def at_episode(hp: CaclaHyper, phase1: jax.Array, progress: jax.Array) -> CaclaH
 
 def _matvec(x: jax.Array, w: jax.Array) -> jax.Array:
     """``x @ w``, its terms added one by one in input order, so an agent trains bit for bit
-    the same alone or in any batch (see :func:`learners.ordered_sum`).
+    the same alone or in any batch (see `learners.ordered_sum`).
 
     Each product is formed inside the chain (``acc + x[i] * w[i]``) rather than by
     ``ordered_sum(x[:, None] * w)``: XLA may fuse a multiply and an add into one rounding, so
@@ -273,14 +273,14 @@ def _head_index(net: MLP, obs: jax.Array) -> jax.Array | None:
 
 def head(net: MLP, obs: jax.Array) -> MLP:
     """The plain network that serves ``obs``: ``net`` itself when every action shares it,
-    else the slot of the observation's action (:attr:`CaclaConfig.heads`)."""
+    else the slot of the observation's action (`CaclaConfig.heads`)."""
     a = _head_index(net, obs)
     return net if a is None else jax.tree.map(lambda w: w[a], net)
 
 
 def _put_head(net: MLP, obs: jax.Array, new: MLP, heads: tuple[int, ...]) -> MLP:
     """``net`` with ``new`` written to the slot that serves ``obs`` and to every slot of an
-    action sharing its network (``heads``; inverse of :func:`head`)."""
+    action sharing its network (``heads``; inverse of `head`)."""
     a = _head_index(net, obs)
     if a is None:
         return new
@@ -315,7 +315,7 @@ def _critic(critic: MLP, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 def _critic_grad(critic: MLP, obs: jax.Array, h: jax.Array) -> MLP:
     """dV/dtheta at ``obs`` (``h``: the hidden activations there), written out with
-    :func:`_matvec` (``jax.grad``'s transposed dots would add in batch-dependent orders)."""
+    `_matvec` (``jax.grad``'s transposed dots would add in batch-dependent orders)."""
     dz = critic.w2[:, 0] * (1.0 - h * h)
     return MLP(w1=obs[:, None] * dz[None, :], b1=dz, w2=h[:, None],
                b2=jnp.ones_like(critic.b2))
@@ -323,7 +323,7 @@ def _critic_grad(critic: MLP, obs: jax.Array, h: jax.Array) -> MLP:
 
 def _actor_grad(actor: MLP, obs: jax.Array, h: jax.Array, mean: jax.Array,
                 err: jax.Array) -> MLP:
-    """d(a(obs) . err)/dtheta, written out like :func:`_critic_grad`."""
+    """d(a(obs) . err)/dtheta, written out like `_critic_grad`."""
     dz2 = err * (1.0 - mean * mean)
     dz1 = _matvec(dz2, actor.w2.T) * (1.0 - h * h)
     return MLP(w1=obs[:, None] * dz1[None, :], b1=dz1, w2=h[:, None] * dz2[None, :], b2=dz2)
@@ -388,7 +388,7 @@ def update(agent: Agent, tr: Transition, hp: CaclaHyper,
     return Agent(actor=actor, critic=critic, var_delta=var_delta), info
 
 
-#: CACLA behind the AL trainer's learner seam (:mod:`grounding_jax.learn.learners`).
+#: CACLA behind the AL trainer's learner seam (`grounding_jax.learn.learners`).
 LEARNER = learners.register(learners.Learner(
     name="cacla", config_type=CaclaConfig, hyper_type=CaclaHyper, state_type=Agent,
     hyper_rules=HYPER_RULES, init=start, act=act, update=update, policy=policy,

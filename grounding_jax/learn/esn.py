@@ -21,7 +21,7 @@ from grounding_jax.sim import tasks
 N_ACTIONS, N_WORDS = tasks.N_ACTIONS, tasks.N_WORDS  # the paper's task set
 
 
-#: What each size of :class:`ESNConfig` accepts (its ``__post_init__`` reads it).
+#: What each size of `ESNConfig` accepts (its ``__post_init__`` reads it).
 CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in ("n_in", "n_res", "n_out")}
 
 
@@ -36,7 +36,7 @@ class ESNConfig:
             (paper: 3 + 6 = 9); None (the default) takes it from ``task_set``.
         spectral_radius: of the reservoir matrix (paper: 0.9).
         connectivity: share of non-zero reservoir weights, in (0, 1] (paper: 0.2).
-        task_set: name of the :class:`tasks.TaskSet` whose actions the namer names.
+        task_set: name of the `tasks.TaskSet` whose actions the namer names.
     """
 
     n_in: int = 90

@@ -1,11 +1,11 @@
 """The learner seam: what the AL trainer needs from a learner, and the learners it knows.
 
-A :class:`Learner` is a bundle of pure functions over the learner's own state (a
+A `Learner` is a bundle of pure functions over the learner's own state (a
 ``flax.struct`` pytree), with a static config dataclass (network sizes: anything that changes
 compiled code) and a traced hyperparameter dataclass (rates, noise, schedules: a sweep over
-them compiles once). :mod:`grounding_jax.learn.al` drives any of them; CACLA
-(:data:`grounding_jax.learn.cacla.LEARNER`) is the paper's and the default. Another learner is
-registered with :func:`register` and chosen by passing its config to
+them compiles once). `grounding_jax.learn.al` drives any of them; CACLA
+(`grounding_jax.learn.cacla.LEARNER`) is the paper's and the default. Another learner is
+registered with `register` and chosen by passing its config to
 ``ALConfig(learner=...)`` and its hyperparameters to ``ALHyper(learner=...)``.
 """
 
@@ -45,7 +45,7 @@ class Learner:
     Attributes:
         name: registry name.
         config_type: the static config dataclass (frozen, JSON-able fields; it must have a
-            ``task_set`` field naming the :class:`~grounding_jax.sim.tasks.TaskSet` whose
+            ``task_set`` field naming the `TaskSet` whose
             observation and action it takes and gives).
         hyper_type: the traced hyperparameter ``flax.struct`` dataclass.
         state_type: the learner's state, a ``flax.struct`` dataclass (evaluation finds the

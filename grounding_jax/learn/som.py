@@ -14,7 +14,7 @@ import numpy as np
 
 from grounding_jax.core.checks import Rule, check_config, integer_at_least
 
-#: What each count of :class:`SOMConfig` accepts (its ``__post_init__`` reads it).
+#: What each count of `SOMConfig` accepts (its ``__post_init__`` reads it).
 CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in ("rows", "cols", "epochs")}
 
 

@@ -9,9 +9,9 @@ sizes (``TLConfig.max_hidden``, ``TLConfig.max_replication``) and masked -- mask
 output 0 and masked input replicas are 0, so neither takes part in the forward pass or gets a
 gradient, and the result equals that of the unpadded network (tested). For sweeps over the
 hidden size, one compile per size turned out faster than padding everything to the largest
-(``benchmarks/tl_throughput.py``), so the sweep runner (and :func:`tl_experiments.run_grid`,
+(``benchmarks/tl_throughput.py``), so the sweep runner (and `tl_experiments.run_grid`,
 which runs through it) groups by hidden size;
-``n`` stays traced (its cost is negligible, see :func:`make_train`).
+``n`` stays traced (its cost is negligible, see `make_train`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ N_PIXELS = 1200
 NOISE_MODES = ("fixed", "fresh")
 
 
-#: What each count of :class:`TLConfig` accepts (its ``__post_init__`` and the sweep runner
+#: What each count of `TLConfig` accepts (its ``__post_init__`` and the sweep runner
 #: read it).
 CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in (
     "epochs", "max_hidden", "max_replication", "eval_every")}
@@ -111,13 +111,13 @@ class TLHyper:
 
 
 #: The shipped input balance and learning rate, chosen on tuning keys disjoint from the
-#: reported ones (docs/tl.md); the defaults of :class:`TLHyper` are the paper's.
+#: reported ones (docs/tl.md); the defaults of `TLHyper` are the paper's.
 TUNED = {"lr": 0.15, "image_scale": 0.6, "target_scale": 8.0}
 
 
 def stack_hyper(rows: list[dict]) -> TLHyper:
-    """A batch of hyperparameters from dicts of :data:`HYPER_FIELDS` (a missing field takes
-    the :class:`TLHyper` default): arrays with a leading batch axis (float32 rates and
+    """A batch of hyperparameters from dicts of `HYPER_FIELDS` (a missing field takes
+    the `TLHyper` default): arrays with a leading batch axis (float32 rates and
     scales, int32 sizes)."""
     default = TLHyper()
     return TLHyper(**{f: jnp.asarray([r.get(f, getattr(default, f)) for r in rows],
@@ -133,12 +133,12 @@ def symbol_scale(hp: TLHyper) -> jax.Array:
                             jnp.full((n_target,), hp.target_scale, jnp.float32)])
 
 
-#: What each field of :class:`TLHyper` accepts (``validate`` and the sweep runner read it).
+#: What each field of `TLHyper` accepts (``validate`` and the sweep runner read it).
 HYPER_RULES: dict[str, Rule] = {
     "lr": POSITIVE, "hidden": integer_at_least(1), "replication": integer_at_least(1),
     "noise": UNIT_CLOSED, "image_scale": POSITIVE, "target_scale": POSITIVE,
 }
-#: The fields of :class:`TLHyper` and whether each is a float (else an int).
+#: The fields of `TLHyper` and whether each is a float (else an int).
 HYPER_FIELDS = {name: rule.type is float for name, rule in HYPER_RULES.items()}
 
 
@@ -238,7 +238,7 @@ def build_inputs(bitmaps: jax.Array, symbols: jax.Array, hp: TLHyper, config: TL
 
 def split_indices(key: jax.Array, n_all: int = tl_data.N_CONFIGS
                   ) -> tuple[jax.Array, jax.Array]:
-    """(train, test) indices of the configurations that :func:`make_train` uses for ``key``:
+    """(train, test) indices of the configurations that `make_train` uses for ``key``:
     a random 2/3 : 1/3 split (the same for every hyperparameter)."""
     perm = jax.random.permutation(jax.random.split(key, 4)[0], n_all)
     n_train = int(round(2 / 3 * n_all))

@@ -1,14 +1,14 @@
 """Where is it, in centimetres: the target localizer for objects placed anywhere (regression).
 
-The paper's TL (:mod:`grounding_jax.learn.tl`) answers "left, middle or right" for the three fixed
-slots. With free placement (:mod:`grounding_jax.sim.placement`) the answer is the target's table
+The paper's TL (`grounding_jax.learn.tl`) answers "left, middle or right" for the three fixed
+slots. With free placement (`grounding_jax.sim.placement`) the answer is the target's table
 coordinates (x, y). The network is the same family -- one sigmoid hidden layer over the edge
 bitmap and the 15 symbolic units (replicated) -- with two linear outputs, the coordinates
 scaled to [-1, 1] over the reachable region.
 
 Three things change in the input, all because positions must survive the pipeline:
 
-- the bitmap is cropped to a fixed window of the table (:func:`vision.table_window`), not to
+- the bitmap is cropped to a fixed window of the table (`vision.table_window`), not to
   the objects' group (the paper's crop keeps only where the objects stand relative to each
   other);
 - it is ``BITMAP_W`` x ``BITMAP_H`` = 40 x 30 (the paper's 1200 values, shaped like the
@@ -251,7 +251,7 @@ def _hidden_of(params: XYParams, x: jax.Array) -> jax.Array:
 
 
 def apply(params: XYParams, x: jax.Array) -> jax.Array:
-    """Normalised coordinates ``[..., 2]`` (see :func:`denormalise`) of inputs ``x``."""
+    """Normalised coordinates ``[..., 2]`` (see `denormalise`) of inputs ``x``."""
     return _hidden_of(params, x) @ params.w2 + params.b2
 
 

@@ -271,7 +271,7 @@ def _tl_run_bytes(cfg: tl.TLConfig) -> int:
 @functools.lru_cache(maxsize=8)
 def _al_pieces(cfg: al.ALConfig) -> Pieces:
     """The AL trained piece by piece (ASHA, PBT), its success rates measured as a grid's are
-    (the same evaluation set, :data:`EVAL_SEED`)."""
+    (the same evaluation set, `EVAL_SEED`)."""
     start, advance = al.make_pieces(cfg)
     found = []
 

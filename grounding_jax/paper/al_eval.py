@@ -51,7 +51,7 @@ _TARGET_SHAPE = jnp.asarray(np.argsort(scene.layout_shape_slots(), axis=1), jnp.
 def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS, actions: tuple[int, ...] = (0, 1, 2)
               ) -> Task:
     """Every (action, position, layout) combination of ``actions`` as a batched
-    :class:`Task`."""
+    `Task`."""
     a, p, lay = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.asarray(layouts),
                             indexing="ij")
     return Task(*(jnp.asarray(x.ravel(), jnp.int32) for x in (a, p, lay)))
@@ -59,8 +59,8 @@ def all_tasks(layouts: tuple[int, ...] = ALL_LAYOUTS, actions: tuple[int, ...] =
 
 def free_tasks(key: jax.Array, placements: int, actions: tuple[int, ...] = (0, 1, 2)) -> Task:
     """Every action of ``actions`` at every slot of ``placements`` random placements
-    (:func:`placement.sample`), each placement with a random layout, as a batched
-    :class:`Task` (for the ``"free"`` task set's evaluation)."""
+    (`placement.sample`), each placement with a random layout, as a batched
+    `Task` (for the ``"free"`` task set's evaluation)."""
     placed, layout = tl_xy.draw_scenes(key, placements)
     a, p, i = np.meshgrid(np.asarray(actions), np.arange(N_POSITIONS), np.arange(placements),
                           indexing="ij")
@@ -82,7 +82,7 @@ def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = 
         since: steps before this one are not judged (a goal switch: the second task's
             touch must come in the second half of what is left, and only objects that move
             after the switch count against it).
-        task_set: whose actions' success rules judge (see :mod:`grounding_jax.sim.tasks`).
+        task_set: whose actions' success rules judge (see `grounding_jax.sim.tasks`).
 
     Returns:
         ``success`` (0/1), and the quantities it is judged on: ``final_point_l1``,
@@ -124,12 +124,12 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
     (``env_params`` leaves are shared scalars or per agent ``[agents]``).
 
     Each agent runs every task (``actions`` x 3 positions x ``layouts``, or the batched tasks
-    ``batch``, e.g. :func:`free_tasks`) ``starts`` times, for ``steps`` steps; every episode
+    ``batch``, e.g. `free_tasks`) ``starts`` times, for ``steps`` steps; every episode
     draws its own start pose (``env_params.start_noise``; 0 = the home pose).
 
     Returns:
         A function whose dict holds arrays ``[agents, starts, tasks]`` (see
-        :func:`episode_success`) plus ``action`` and ``position`` ``[tasks]``. Its optional
+        `episode_success`) plus ``action`` and ``position`` ``[tasks]``. Its optional
         ``batch`` argument runs other tasks of the same shapes instead (no new compile).
     """
     env = as_env(env, steps)
@@ -167,7 +167,7 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
 
 
 def success_table(out: dict[str, jax.Array]) -> dict[str, object]:
-    """Success rates from :func:`make_success`'s output.
+    """Success rates from `make_success`'s output.
 
     Returns:
         ``by_action`` {name: rate of the median agent}, ``spread`` {name: [min, q25, median,
@@ -205,11 +205,11 @@ def make_success_rates(env: Env | EnvConfig = DEFAULT_ENV, batch: int = 8,
                        layouts: tuple[int, ...] = ALL_LAYOUTS):
     """Build ``rates(agents, key, env_params) -> {name: [agents]}``: each agent's success rate
     per action from home, point from random starts (one per position and layout, within
-    ``RANDOM_START_NOISE`` of home), and their mean -- the names of :data:`SUCCESS_METRICS`.
+    ``RANDOM_START_NOISE`` of home), and their mean -- the names of `SUCCESS_METRICS`.
 
     For an env whose actor is told the target's coordinates (the ``"free"`` task set) the
-    tasks are every slot of :data:`FREE_EVAL_PLACEMENTS` random placements (random layouts)
-    drawn from :data:`FREE_EVAL_KEY` instead of the paper's slots and ``layouts``.
+    tasks are every slot of `FREE_EVAL_PLACEMENTS` random placements (random layouts)
+    drawn from `FREE_EVAL_KEY` instead of the paper's slots and ``layouts``.
 
     Agents are evaluated ``batch`` at a time (the stacked trajectories of a large batch would
     not fit in memory). ``env_params`` leaves may be per agent (a sweep's traced env fields).
@@ -281,9 +281,9 @@ def switch_pairs(layouts: tuple[int, ...] = SHAPE_LAYOUTS) -> tuple[Task, Task]:
 
 def make_switch_success(env: Env | EnvConfig = DEFAULT_ENV, steps: int = EVAL_STEPS,
                         switch_at: int = 20, layouts: tuple[int, ...] = SHAPE_LAYOUTS):
-    """Build ``success(agents, key) -> dict`` over :func:`switch_pairs`: each switched
+    """Build ``success(agents, key) -> dict`` over `switch_pairs`: each switched
     episode is judged by the second task's criterion at its end, counting only what happened
-    after the switch (:func:`episode_success` with ``since``); the episode runs all
+    after the switch (`episode_success` with ``since``); the episode runs all
     ``steps`` (a wrong-object move does not end it, it fails it).
 
     Returns:

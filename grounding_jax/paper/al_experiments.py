@@ -1,5 +1,5 @@
 """The paper's AL figures (10, 11, 13, 14) and the AL experiment, from trained agents
-(success rates: :mod:`grounding_jax.paper.al_eval`)."""
+(success rates: `grounding_jax.paper.al_eval`)."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def success_curve(success: dict, out, phase1_episodes: int = 0,
                   paper_episodes: int = 450) -> dict:
     """Success of the median agent (and the min-max over agents) against training episodes,
     per action from home, point from random starts and the goal switch, from the success
-    measured at each stop of :func:`run` (``success[str(episode)]``)."""
+    measured at each stop of `run` (``success[str(episode)]``)."""
     plt = pyplot()
     eps = sorted(int(e) for e in success)
     series = {f"{a} (home)": [success[str(e)]["home"]["spread"][a] for e in eps]
@@ -302,9 +302,9 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
         phase1, phase2: the schedule's episodes.
         no_tricks_episodes: episodes of the no-tricks run (0 skips Fig 14).
         env_config: static env config (backend).
-        hyper: CACLA hyperparameters (default :data:`TUNED`).
+        hyper: CACLA hyperparameters (default `TUNED`).
         decay: the other shipped fields -- decays, executed_target, ... -- by name (see
-            :func:`al.hyper`; default :data:`TUNED_AL`).
+            `al.hyper`; default `TUNED_AL`).
         checkpoints: extra episode counts at which success is measured.
         random_starts: random start poses per point task and layout (1: 108 starts).
         learner_config: the learner's static config (network sizes; default
@@ -393,7 +393,7 @@ def point_tail(agents, env_params: EnvParams = DEFAULT_PARAMS,
 
 def point_tail_figure(tails: dict[str, np.ndarray], out, name: str = "point_tail") -> dict:
     """Figure: L1 over the last steps of the point episodes, one panel per labelled set of
-    agents (``tails`` from :func:`point_tail`), median and quartiles over all episodes, and
+    agents (``tails`` from `point_tail`), median and quartiles over all episodes, and
     the share of episodes that end still (L1 range over the last ``STILL_LAST`` steps <
     ``POINT_STILL``) and close (final L1 < ``POINT_L1``)."""
     plt = pyplot()

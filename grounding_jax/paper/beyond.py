@@ -3,28 +3,28 @@ that moves.
 
 The paper's family (three fixed slots, the actor told the target's slot) stays as it is. This
 one uses the ``"free_hand"`` task set: the same actions and success rules, but every training
-episode places the objects anywhere on the reachable table (:func:`placement.sample`) and the
-actor is told the target's coordinates (as a population code, :func:`placement.population`;
-from the simulator while it learns, from the continuous TL :mod:`grounding_jax.learn.tl_xy` when the
+episode places the objects anywhere on the reachable table (`placement.sample`) and the
+actor is told the target's coordinates (as a population code, `placement.population`;
+from the simulator while it learns, from the continuous TL `grounding_jax.learn.tl_xy` when the
 robot performs) and sees where its palm is relative to them (``TaskSet.hand_obs``). Point's
 reward and success use the pointing map (IK poses on a 1 cm grid, smoothed, interpolated
-inside ``jit``; :func:`placement.pointing_pose`), and touch's reward the touching map in the
-same way (the palm pressed on the target's top; :func:`placement.touch_pose`).
+inside ``jit``; `placement.pointing_pose`), and touch's reward the touching map in the
+same way (the palm pressed on the target's top; `placement.touch_pose`).
 
-The learner's settings are :data:`FREE_TUNED` (the paper family's but for gamma 0.3 and the
-actor's learning rate 0.1), its networks :data:`FREE_LEARNER` (an actor-critic per action);
+The learner's settings are `FREE_TUNED` (the paper family's but for gamma 0.3 and the
+actor's learning rate 0.1), its networks `FREE_LEARNER` (an actor-critic per action);
 the target's coordinates reach the actor as a population code, and the rewards are the free
 family's (see ``tasks.FREE``: every action is penalised for touching a non-target object,
 touch reaches for its touching pose, without the paper's penalty for touching the target).
 
-- :func:`train` / :func:`success`: agents trained on random placements, judged on held-out
+- `train` / `success`: agents trained on random placements, judged on held-out
   random placements (fresh draws, random layouts) with the action-learning criteria.
-- :func:`moving`: the target slides at 0-3 cm/s along a 20-22 cm path; the actor told the
+- `moving`: the target slides at 0-3 cm/s along a 20-22 cm path; the actor told the
   target's current coordinates every step against the same actor told only where it started
   (the paper's setting). Figure ``moving.png`` (like Fig 13, for motion instead of a switch).
-- :func:`train_namer`: an ESN that names the free actor's action and target from its hidden
+- `train_namer`: an ESN that names the free actor's action and target from its hidden
   layer and the continuous TL's (as the paper's AN does from the paper's actor and TL).
-- :func:`strip`: camera frames of one episode of the whole robot (render -> TL -> act ->
+- `strip`: camera frames of one episode of the whole robot (render -> TL -> act ->
   name).
 """
 
@@ -83,12 +83,12 @@ FREE_TUNED = {**alx.TUNED, **alx.TUNED_AL, "gamma": 0.3, "actor_lr": 0.1, "actio
 
 
 def hyper() -> al.ALHyper:
-    """The free family's shipped settings (:data:`FREE_TUNED`)."""
+    """The free family's shipped settings (`FREE_TUNED`)."""
     return al.validate(al.hyper(**FREE_TUNED))
 
 
 def params() -> EnvParams:
-    """The env parameters the free family's robot acts with (:data:`FREE_TUNED`'s)."""
+    """The env parameters the free family's robot acts with (`FREE_TUNED`'s)."""
     return hyper().env
 
 
@@ -99,21 +99,21 @@ def make_success(env: Env, key: jax.Array, placements: int):
 
 
 def success(out: dict) -> dict:
-    """The success table of :func:`make_success`'s output (median agent and spread)."""
+    """The success table of `make_success`'s output (median agent and spread)."""
     table = al_eval.success_table(out)
     table["goals"] = GOALS
     table["met"] = {a: table["by_action"][a] >= g for a, g in GOALS.items()}
     return table
 
 
-#: How :func:`choose` picks the agent to save, in words (REPORT, metrics).
+#: How `choose` picks the agent to save, in words (REPORT, metrics).
 SELECTION = ("the agent whose worst margin over the goals (success minus goal, per action) is "
              "largest on validation placements, ties broken by the overall rate")
 
 
 def choose(table: dict) -> int:
-    """The agent to save, from a :func:`success` table on validation placements: the one
-    whose worst margin over :data:`GOALS` is largest (ties: the higher overall rate)."""
+    """The agent to save, from a `success` table on validation placements: the one
+    whose worst margin over `GOALS` is largest (ties: the higher overall rate)."""
     per = table["per_agent_by_action"]
     worst = np.min([np.asarray(per[a]) - g for a, g in GOALS.items()], axis=0)
     return int(np.lexsort((-np.asarray(table["per_agent"]), -worst))[0])
@@ -125,13 +125,13 @@ def train(key: jax.Array, seeds: int, phase1: int, phase2: int, eval_placements:
     of ``checkpoints`` episodes and at the end.
 
     The agent to save is chosen on validation placements (another draw than the held-out
-    ones the tables report): :func:`choose`.
+    ones the tables report): `choose`.
 
     Returns:
         (results: ``success`` {episode: table}, ``final``, ``train_s``, ``rl_steps``,
         ``median_agent`` -- the index of the agent with the median overall rate on the
         held-out placements --, ``validation`` (the table on the validation placements) and
-        ``saved_agent`` (:func:`choose`'s pick on them); the trained agents ``[seeds]``).
+        ``saved_agent`` (`choose`'s pick on them); the trained agents ``[seeds]``).
     """
     cfg = config(phase1, phase2, backend)
     env = Env(cfg.env)
@@ -185,7 +185,7 @@ def _moving_draw(key: jax.Array, scenes: int, speed: jax.Array):
 def moving_tasks(key: jax.Array, scenes: int, speed: Any, action: int,
                  told_start: bool) -> Task:
     """``scenes`` tasks whose target (the left slot) slides right at ``speed`` m/s
-    (:func:`placement.moving`); ``told_start``: the actor is told only where it started."""
+    (`placement.moving`); ``told_start``: the actor is told only where it started."""
     placed, velocity, layout = _moving_draw(key, scenes, jnp.float32(speed))
     i32 = jnp.int32
     return Task(action=jnp.full((scenes,), action, i32), position=jnp.zeros((scenes,), i32),
@@ -276,10 +276,10 @@ def moving(agent, key: jax.Array, out: pathlib.Path, scenes: int = 16,
 def namer_data(agent, xy_params, xy_config, key: jax.Array, scenes: int, steps: int = 100,
                start_noise: float = 0.0, env: Env | None = None,
                data: Any = None) -> dict:
-    """Sequences for the free family's action namer, as :func:`an.dataset` makes them for the
+    """Sequences for the free family's action namer, as `an.dataset` makes them for the
     paper's: for every rendered scene, every target word and every action, the greedy
     actor's hidden layer at each step beside the continuous TL's hidden layer for that scene
-    and word (:func:`tl_xy.hidden`).
+    and word (`tl_xy.hidden`).
 
     Args:
         agent: the free family's actor.
@@ -288,7 +288,7 @@ def namer_data(agent, xy_params, xy_config, key: jax.Array, scenes: int, steps: 
         scenes: scenes to render (random placements and layouts).
         steps: steps per sequence.
         start_noise: random arm starts (0: home).
-        env: the free family's env (default :func:`env_config`).
+        env: the free family's env (default `env_config`).
         data: already rendered scenes (``tl_xy.XYData``) instead of new ones.
 
     Returns:
@@ -330,7 +330,7 @@ def train_namer(key: jax.Array, agent, xy_params, xy_config, scenes: int, seeds:
                 steps: int = 100, start_noise: float = 0.5, n_res: int = FREE_NAMER_RES
                 ) -> tuple[dict, Any]:
     """The free family's action namer: ESNs (the paper's spectral radius and connectivity,
-    ``n_res`` reservoir units) over :func:`namer_data`, ``seeds`` splits 2/3 : 1/3 by scene;
+    ``n_res`` reservoir units) over `namer_data`, ``seeds`` splits 2/3 : 1/3 by scene;
     named at the last step.
 
     Returns:
@@ -357,7 +357,7 @@ def train_namer(key: jax.Array, agent, xy_params, xy_config, scenes: int, seeds:
 # ----------------------------------------------------------------------- the whole robot's eyes
 def eyes_tasks(localize, key: jax.Array, placements: int,
                words: tuple[str, ...] = tasks.COLOURS) -> tuple[Task, np.ndarray]:
-    """:func:`al_eval.free_tasks` with ``target_xy`` from the robot's eyes: each scene
+    """`al_eval.free_tasks` with ``target_xy`` from the robot's eyes: each scene
     rendered by the eye camera at rest, each target named by the one of ``words`` that names
     it (its colour, or with ``tasks.SHAPES`` its shape), located by ``localize(rgb, layout,
     word) -> xy`` (e.g. ``TrainedFree.localize``).

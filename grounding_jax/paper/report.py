@@ -1,6 +1,6 @@
 """REPORT.md: the paper's numbers beside ours, from a run's ``metrics.json``.
 
-``train.py`` writes ``results/<profile>/metrics.json`` and then :func:`report` of it;
+``train.py`` writes ``results/<profile>/metrics.json`` and then `report` of it;
 ``python train.py --report-only`` rewrites the report from the stored metrics alone.
 """
 
@@ -561,7 +561,7 @@ def report(result: dict, strips: dict[str, str] | None = None) -> str:
     Args:
         result: a run's metrics (``train.py`` writes them to ``metrics.json``).
         strips: ``{action: image path}`` of the robot acting (see
-            :mod:`grounding_jax.paper.strips`), shown first; None: no such section.
+            `grounding_jax.paper.strips`), shown first; None: no such section.
 
     Returns:
         The report's Markdown text.

@@ -17,10 +17,10 @@ FOLDER = "robot"
 
 def write_strips(robot: Robot, out: pathlib.Path, width: int = 320, height: int = 224,
                  key: jax.Array | None = None) -> dict[str, str]:
-    """Perform each of :data:`COMMANDS` on the paper's slots and write its strip.
+    """Perform each of `COMMANDS` on the paper's slots and write its strip.
 
     Args:
-        robot: the trained robot (:func:`grounding_jax.load`).
+        robot: the trained robot (`grounding_jax.load`).
         out: a run's folder; the strips go to ``out/robot/<action>.png``.
         width, height: one frame's size.
         key: the episodes' key (default ``jax.random.key(0)``, as ``perform``'s).
@@ -41,6 +41,6 @@ def write_strips(robot: Robot, out: pathlib.Path, width: int = 320, height: int 
 
 
 def existing_strips(out: pathlib.Path) -> dict[str, str]:
-    """The strips :func:`write_strips` left in ``out`` (for a report rebuilt later)."""
+    """The strips `write_strips` left in ``out`` (for a report rebuilt later)."""
     return {a: f"{FOLDER}/{a}.png" for a, _ in COMMANDS
             if (out / FOLDER / f"{a}.png").is_file()}

@@ -2,7 +2,7 @@
 n), and the pixel-noise test. Each writes ``<name>.json`` and ``<name>.png`` under ``out``.
 
 Grid points x seeds run through the sweep runner's groups: ``vmap``ped, ``jit``ted calls, one
-compile per hidden size (see :func:`run_grid`).
+compile per hidden size (see `run_grid`).
 """
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ PAPER = {
 
 
 #: The network the experiments train: the paper's H=50, n=20 with the shipped input balance
-#: and learning rate (:data:`tl.TUNED`).
+#: and learning rate (`tl.TUNED`).
 BASE = {"hidden": 50, "replication": 20, **tl.TUNED}
 
 
 def run_grid(key: jax.Array, params: dict[str, Any], grid: dict[str, list], seeds: int
              ) -> dict[str, np.ndarray]:
     """Train every point of ``grid`` (the other fields from ``params``) with ``seeds`` seeds,
-    through the sweep runner's groups (:func:`sweep.run_group`, nothing written): one compile
+    through the sweep runner's groups (`sweep.run_group`, nothing written): one compile
     per static group (hidden size, epochs, noise mode), the rest ``vmap``ped and traced.
 
     Args:
@@ -204,7 +204,7 @@ def reference(key: jax.Array, out: pathlib.Path, tl_result: dict, seeds: int,
     """Our TL beside the lookup bound and two standard learners (optax Adam, softmax
     cross-entropy, L2 1e-4, 2000 full-batch steps, on the paper's inputs: bitmap + 20 copies
     of the 15 symbolic units): logistic regression and an MLP with 50 ReLU units. All on the
-    train/test splits the TL's :func:`accuracy` run used (``key`` is that run's key).
+    train/test splits the TL's `accuracy` run used (``key`` is that run's key).
 
     Returns:
         Per learner: mean, std and min test accuracy over the splits, and the accuracy on

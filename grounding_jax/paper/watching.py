@@ -1,5 +1,5 @@
 """Beyond the paper: the robot names actions it only watches (``Robot.watch``; the method is
-motor resonance, :mod:`grounding_jax.robot.observer`).
+motor resonance, `grounding_jax.robot.observer`).
 
 Watched episodes come from robots the observer is not: the AL agents trained beside its own
 from other seeds (paper family: random layouts; free family: placements drawn from a key
@@ -186,7 +186,7 @@ def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int
     Args:
         key: one PRNG key, split once here.
         out: output folder (``observer.json``, ``observer.png``).
-        robot: the observer (:class:`grounding_jax.robot.trained.Robot`), with ``agents``
+        robot: the observer (`grounding_jax.robot.trained.Robot`), with ``agents``
             (and ``free.agents``) saved: the watched agents are all but its own.
         episodes: watched episodes per other agent.
         scripted_per_family: scripted episodes per family.
@@ -194,7 +194,7 @@ def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int
     Returns:
         ``other_agent`` (the median watched agent's accuracy, both families' agents
         together), ``frames`` (None: the camera route is not built), ``paper``, ``free``
-        and ``scripted`` (see :func:`judge`), ``goal``.
+        and ``scripted`` (see `judge`), ``goal``.
     """
     out = pathlib.Path(out)
     k_paper, k_free, k_script = jax.random.split(key, 3)

@@ -9,7 +9,7 @@ place, step by step:
    it sets its own observation to that command (the arm's joints and touch sense as watched,
    the command's action and target units), asks its own actor for the move, and imagines
    making it: one env step from the watched state (its body model is the simulator). Two
-   mismatches are averaged over the reach -- the episode's first :data:`REACH` /
+   mismatches are averaged over the reach -- the episode's first `REACH` /
    ``action_scale`` steps (15 at the paper's scale of 1/3; before the episode ended) --: of
    the joints (squared, scaled units) and of the hand (the palm's position, squared metres)
    between where the imagined step and the watched step lead. The reach says where and how
@@ -77,7 +77,7 @@ def make_resonance(env: Env, learner: learners.Learner):
     episode (``states``: the env states after each step, stacked ``[T >= 2]``): per command,
     the mean squared mismatch of the joints (scaled units; ``errors[0]``) and of the palm
     (metres; ``errors[1]``) between the watched next state and the one the observer's own move
-    would reach, over the reach (see the module doc; :func:`score` combines them). Pure;
+    would reach, over the reach (see the module doc; `score` combines them). Pure;
     ``vmap`` it for batches."""
     n_actions = env.tasks.n_actions
     act_a, act_p = commands(n_actions)
@@ -110,7 +110,7 @@ TINY = 1e-12
 
 
 def score(errors: jax.Array) -> jax.Array:
-    """The resonance score ``[n_actions, 3]`` of :func:`make_resonance`'s mismatches: the
+    """The resonance score ``[n_actions, 3]`` of `make_resonance`'s mismatches: the
     sum of the logs of the joint and hand mismatches (smaller is better)."""
     return jnp.sum(jnp.log(errors + TINY), axis=0)
 
@@ -124,7 +124,7 @@ def hidden_under(env: Env, learner: learners.Learner, agent, states: State, acti
 
 
 def best(scores: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """(action, slot) of the smallest resonance score ``[n_actions, 3]`` (:func:`score`)."""
+    """(action, slot) of the smallest resonance score ``[n_actions, 3]`` (`score`)."""
     i = jnp.argmin(scores.reshape(-1))
     return i // N_SLOTS, i % N_SLOTS
 
@@ -149,7 +149,7 @@ def names_target(layout: int, word: int, slot: int) -> bool:
 def check_states(states: Any, obs_size: int, field: str = "trajectory") -> State:
     """A watched trajectory as env states stacked on a leading time axis (optionally with a
     batch axis before it); ValueError naming ``field`` and what is accepted otherwise.
-    Accepts :meth:`Robot.perform`'s output dict (its ``"trajectory"``) too."""
+    Accepts `Robot.perform`'s output dict (its ``"trajectory"``) too."""
     if isinstance(states, dict) and "trajectory" in states:
         states = states["trajectory"]
     if not isinstance(states, State):

@@ -1,5 +1,5 @@
 """``python -m grounding_jax.robot.seal DIR``: seal trained modules saved before checksums were
-saved with them (see :func:`grounding_jax.robot.trained.seal`); ``load`` refuses unsealed ones."""
+saved with them (see `grounding_jax.robot.trained.seal`); ``load`` refuses unsealed ones."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Trained modules, saved together and loaded ready to use: ``grounding_jax.load(path)``.
 
 ``train.py`` saves the TL, one AL agent and one AN (ESN with its readout) to
-``results/<profile>/modules``. :func:`load` returns a :class:`Robot`::
+``results/<profile>/modules``. `load` returns a `Robot`::
 
     robot = grounding_jax.load("results/paper/modules")
     robot.tl.localize(layout=3, word="red")        # where the red object lies: 0 L, 1 M, 2 R
@@ -15,18 +15,18 @@
 
 With ``placement`` (objects anywhere; needs the modules of the free family, which
 ``train.py`` saves beside the paper's) the robot renders the scene with its eye camera, the
-continuous TL (:mod:`grounding_jax.learn.tl_xy`) reads the target's coordinates from it, and the
+continuous TL (`grounding_jax.learn.tl_xy`) reads the target's coordinates from it, and the
 free family's actor acts on them, and the free family's namer (an ESN over that actor's and
 that TL's hidden layers) names what was done (``named`` is None for modules saved without it).
 
-:meth:`Robot.watch` names an episode the robot only watched, by motor resonance through its
-own actor (:mod:`grounding_jax.robot.observer`); ``agents`` holds the other AL agents trained
-beside its own (:meth:`Robot.with_agent`).
+`Robot.watch` names an episode the robot only watched, by motor resonance through its
+own actor (`grounding_jax.robot.observer`); ``agents`` holds the other AL agents trained
+beside its own (`Robot.with_agent`).
 
-A checkpoint is refused (:class:`CheckpointError`) when it was written by another package
+A checkpoint is refused (`CheckpointError`) when it was written by another package
 version, when its config.json was edited after saving, when a file or an array differs from
 the checksums saved with it, when its config is not one this version can build, or when its
-arrays do not match that config. :func:`save` holds the parent folder's writer lock and
+arrays do not match that config. `save` holds the parent folder's writer lock and
 replaces an earlier save only once the new one is complete.
 """
 
@@ -84,7 +84,7 @@ class TrainedTL:
 
     def position(self, bitmap: jax.Array, symbols: jax.Array) -> jax.Array:
         """Position index (0 left, 1 middle, 2 right) for bitmaps ``[..., 1200]`` and symbol
-        units ``[..., 15]`` (see :func:`tl_data.symbol_units`)."""
+        units ``[..., 15]`` (see `tl_data.symbol_units`)."""
         return jnp.argmax(self.outputs(bitmap, symbols), axis=-1)
 
     def localize(self, layout: int, word: str) -> int:
@@ -139,7 +139,7 @@ class TrainedFree:
     (when trained) a namer over the two's hidden layers. ``params``: the env parameters the
     actor was trained with (its action scale), which it acts with. ``agents``: every agent
     trained beside it (stacked, when saved), ``saved_agent`` the index of ``al``'s among them
-    (see :meth:`Robot.with_free_agent`)."""
+    (see `Robot.with_free_agent`)."""
 
     xy_params: tl_xy.XYParams
     xy_config: tl_xy.XYConfig
@@ -178,10 +178,10 @@ def _spoken(w: Any) -> Any:
 
 @dataclasses.dataclass(frozen=True)
 class Robot:
-    """The three trained modules together, as :func:`load` returns them (``free``: the free
+    """The three trained modules together, as `load` returns them (``free``: the free
     family's modules when the checkpoint has them, else None; ``agents``: every AL agent
     trained beside the robot's own, stacked, when saved -- ``saved_agent`` is the index of
-    ``al``'s among them; see :meth:`with_agent`)."""
+    ``al``'s among them; see `with_agent`)."""
 
     tl: TrainedTL
     al: TrainedAL
@@ -205,7 +205,7 @@ class Robot:
         all that train.py trained, from different seeds; by default it acts with
         ``saved_agent``). The TL and the AN stay its own; the compiled episodes are shared.
         The AN was fitted on the saved agent's hidden layer, so ``perform``'s ``named`` is not
-        to be trusted for another agent; the robot's :meth:`watch` names what it did.
+        to be trusted for another agent; the robot's `watch` names what it did.
 
         Raises:
             ValueError: no agents saved, or ``i`` out of range.
@@ -262,7 +262,7 @@ class Robot:
             params: env parameters (default: those the acting robot was trained with --
                 ``EnvParams()`` for the paper's, ``free.params`` with a placement).
             placement: None (the paper's slots), ``"random"`` or coordinates ``[3, 2|3]``
-                (see :func:`make_task`): objects anywhere, seen through the eye camera
+                (see `make_task`): objects anywhere, seen through the eye camera
                 (needs ``self.free``).
 
         Returns:
@@ -388,11 +388,11 @@ class Robot:
 
     def resonance(self, trajectory: Any, params: EnvParams | None = None) -> dict | list[dict]:
         """Which of its own commands explains a watched episode best (motor resonance, see
-        :mod:`grounding_jax.robot.observer`), and how it names it.
+        `grounding_jax.robot.observer`), and how it names it.
 
         Args:
             trajectory: env states after each step, stacked ``[T, ...]`` (``T >= 2``) -- as
-                :meth:`perform` returns in ``"trajectory"`` (its output dict is accepted too),
+                `perform` returns in ``"trajectory"`` (its output dict is accepted too),
                 or any env trajectory of another robot -- or a batch ``[N, T, ...]``. An
                 episode with a placement is watched with the free family's modules (and its
                 scene seen through the eye camera).
@@ -446,13 +446,13 @@ class Robot:
 
     def watch(self, trajectory: Any, params: EnvParams | None = None
               ) -> tuple[str, str] | None | list:
-        """Name an action it only watched: (action word, target word), as :meth:`perform`'s
-        ``named`` -- the command it resonates with, named by its AN (see :meth:`resonance`;
+        """Name an action it only watched: (action word, target word), as `perform`'s
+        ``named`` -- the command it resonates with, named by its AN (see `resonance`;
         None for a free-family episode when the modules hold no free-family namer). A batch
         ``[N, T, ...]`` gives a list.
 
         Raises:
-            ValueError: see :meth:`resonance`.
+            ValueError: see `resonance`.
         """
         out = self.resonance(trajectory, params)
         return [r["named"] for r in out] if isinstance(out, list) else out["named"]
@@ -585,7 +585,7 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         extra: JSON-able notes kept in the config (e.g. the profile and seed).
         free_modules: the free family's robot, optional: ``{"xy_params", "xy_config"
             (tl_xy.XYConfig), "agent", "al_config" (cacla.CaclaConfig), "env_config"}``,
-            ``"params"`` (the :class:`EnvParams` it was trained with; default
+            ``"params"`` (the `EnvParams` it was trained with; default
             ``EnvParams()``), optionally ``"agents"`` (every agent trained, stacked) with
             ``"saved_agent"`` (the index of ``"agent"`` among them) and, when a namer was
             trained for it, ``"net"`` and ``"esn_config"``.
@@ -641,7 +641,7 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
 
 
 def load(directory: str | pathlib.Path) -> Robot:
-    """Load modules saved by :func:`save` (``train.py`` writes ``results/<profile>/modules``).
+    """Load modules saved by `save` (``train.py`` writes ``results/<profile>/modules``).
 
     Raises:
         CheckpointError: no checkpoint there, another package version, a config.json edited
@@ -682,7 +682,7 @@ def load(directory: str | pathlib.Path) -> Robot:
 def seal(directory: str | pathlib.Path) -> None:
     """Seal trained modules saved before checksums were saved with them (grounding_jax
     0.1.0 of 2026-12-03 and earlier): write their step's manifest from the files as they
-    are now. Trust the files first (e.g. they are as committed); :func:`load` refuses
+    are now. Trust the files first (e.g. they are as committed); `load` refuses
     modules without a manifest.
 
     Raises:

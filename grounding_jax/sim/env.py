@@ -55,7 +55,7 @@ from grounding_jax.sim import placement as free
 OBS_SIZE, ACTION_SIZE = tasks.OBS_SIZE, tasks.ACTION_SIZE
 
 
-#: What each count of :class:`EnvConfig` accepts (its ``__post_init__`` and the sweep runner
+#: What each count of `EnvConfig` accepts (its ``__post_init__`` and the sweep runner
 #: read it).
 CONFIG_RULES: dict[str, Rule] = {"substeps": integer_at_least(1),
                                  "episode_length": integer_at_least(1)}
@@ -69,7 +69,7 @@ class EnvConfig:
         backend: ``"mujoco"`` (C MuJoCo via ``mujoco.rollout``; CPU) or ``"mjx"`` (pure JAX).
         substeps: physics steps (5 ms each) per RL step.
         episode_length: RL steps per episode (the paper: 75).
-        task_set: name of the :class:`tasks.TaskSet` (actions, their rewards and the
+        task_set: name of the `tasks.TaskSet` (actions, their rewards and the
             observation's layout; default the paper's point/touch/push).
     """
 
@@ -85,7 +85,7 @@ class EnvConfig:
 
     @property
     def tasks(self) -> tasks.TaskSet:
-        """The :class:`tasks.TaskSet` named by ``task_set``."""
+        """The `tasks.TaskSet` named by ``task_set``."""
         return tasks.get(self.task_set)
 
 
@@ -127,7 +127,7 @@ class EnvParams:
         return self
 
 
-#: What each field of :class:`EnvParams` accepts (``validate`` and the sweep runner read it).
+#: What each field of `EnvParams` accepts (``validate`` and the sweep runner read it).
 PARAM_RULES: dict[str, Rule] = {
     "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
     "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE,
@@ -145,8 +145,8 @@ class Task:
     ``action``, ``position`` and ``layout`` are int32 arrays (so a task can be traced, batched
     and replaced mid-episode). ``placement`` is ``None`` for the paper's three fixed slots, or
     float32 ``[3, 3]`` (x, y, yaw of the left, middle and right slot; see
-    :mod:`grounding_jax.sim.placement`) for objects placed anywhere on the reachable table. Build
-    one from names with :func:`make_task`.
+    `grounding_jax.sim.placement`) for objects placed anywhere on the reachable table. Build
+    one from names with `make_task`.
 
     Two optional float32 ``[2]`` fields serve the ``"free"`` task set (whose actor is told
     the target's coordinates): ``target_xy`` -- the coordinates the actor is told (e.g. the
@@ -196,7 +196,7 @@ def _index(value: Any, names: tuple[str, ...], field: str) -> int:
 
 
 def layout_names() -> tuple[str, ...]:
-    """Names of the 36 layouts, in index order (see :func:`scene.layout_name`)."""
+    """Names of the 36 layouts, in index order (see `scene.layout_name`)."""
     return tuple(scene.layout_name(i) for i in range(len(scene.LAYOUTS)))
 
 
@@ -204,24 +204,24 @@ def make_task(action: str | int, position: str | int, layout: str | int = 0,
               task_set: str = tasks.PAPER.name, placement: Any = None,
               key: jax.Array | None = None, target_xy: Any = None,
               velocity: Any = None) -> Task:
-    """A :class:`Task` from names or indices, validated.
+    """A `Task` from names or indices, validated.
 
     Args:
         action: ``"point"``, ``"touch"`` or ``"push"`` (or 0..2); an action of ``task_set``.
         position: ``"left"``, ``"middle"`` or ``"right"`` (or 0..2), or the word that names
             the target (``"red"``, ``"box"``, ...; its slot in ``layout``).
-        layout: index 0..35 or a name from :func:`layout_names`: which shape and colour
+        layout: index 0..35 or a name from `layout_names`: which shape and colour
             stands in each slot.
-        task_set: the name of the :class:`tasks.TaskSet` the action belongs to.
+        task_set: the name of the `tasks.TaskSet` the action belongs to.
         placement: ``None`` (the paper's fixed slots), ``"random"`` (drawn with ``key`` by
-            :func:`placement.sample`) or explicit coordinates ``[3, 2]`` / ``[3, 3]`` (x, y
-            [, yaw] of the left, middle and right slot; checked by :func:`placement.check`).
+            `placement.sample`) or explicit coordinates ``[3, 2]`` / ``[3, 3]`` (x, y
+            [, yaw] of the left, middle and right slot; checked by `placement.check`).
         key: PRNG key for ``placement="random"``.
         target_xy: the target's coordinates (metres) the actor is told, ``[2]``; default
-            the simulator's (see :class:`Task`).
+            the simulator's (see `Task`).
         velocity: the target's sliding velocity (m/s), ``[2]``; needs a placement. With a
             velocity only the target must lie in the reachable region (see
-            :func:`placement.moving`).
+            `placement.moving`).
 
     Returns:
         The task: int32 scalars, and the float32 placement, coordinates and velocity when
@@ -337,13 +337,13 @@ def scale_joints(q: jax.Array) -> jax.Array:
 
 
 def unscale_joints(j: jax.Array) -> jax.Array:
-    """Inverse of :func:`scale_joints`."""
+    """Inverse of `scale_joints`."""
     lo, hi = _LIMITS[:, 0], _LIMITS[:, 1]
     return lo + (j + 1.0) * 0.5 * (hi - lo)
 
 
 class Env:
-    """The environment for one static :class:`EnvConfig`.
+    """The environment for one static `EnvConfig`.
 
     ``reset`` and ``step`` are pure functions of their arguments and may be used under
     ``jax.jit``, ``jax.vmap`` and ``jax.lax.scan`` on both backends.
@@ -459,11 +459,11 @@ class Env:
 
         Args:
             key: PRNG key (used for the random start pose when ``params.start_noise > 0``).
-            task: the :class:`Task` (see :func:`make_task`).
-            params: traced :class:`EnvParams`.
+            task: the `Task` (see `make_task`).
+            params: traced `EnvParams`.
 
         Returns:
-            The initial :class:`State` (reward is that of the start pose).
+            The initial `State` (reward is that of the start pose).
         """
         return self._reset(key, task, params)
 
@@ -478,12 +478,12 @@ class Env:
         Args:
             when: bool scalar: start a new episode.
             state: the current state (kept where ``when`` is false).
-            key: as for :meth:`reset`.
-            task: as for :meth:`reset`.
-            params: as for :meth:`reset`.
+            key: as for `reset`.
+            task: as for `reset`.
+            params: as for `reset`.
 
         Returns:
-            The new or the unchanged :class:`State`.
+            The new or the unchanged `State`.
         """
         fresh = self._reset(key, task, params, live=when)
         return jax.tree.map(lambda n, o: jnp.where(when, n, o), fresh, state)
@@ -516,12 +516,12 @@ class Env:
         """Advance one RL step.
 
         Args:
-            state: current :class:`State`.
+            state: current `State`.
             action: ``[4]`` change of the scaled joints (before ``action_scale``).
-            params: traced :class:`EnvParams`.
+            params: traced `EnvParams`.
 
         Returns:
-            The next :class:`State` (same pytree structure and dtypes).
+            The next `State` (same pytree structure and dtypes).
         """
         action = jnp.asarray(action)
         n = self.tasks.action_size
@@ -606,9 +606,9 @@ class Env:
 
 
 def as_env(env: Env | EnvConfig | None = None, steps: int | None = None) -> Env:
-    """``env`` itself, or an :class:`Env` built from a static config (default
+    """``env`` itself, or an `Env` built from a static config (default
     ``EnvConfig()``); with ``steps``, its episodes last that many steps
-    (:meth:`Env.with_episode_length`)."""
+    (`Env.with_episode_length`)."""
     env = env if isinstance(env, Env) else Env(EnvConfig() if env is None else env)
     return env if steps is None else env.with_episode_length(steps)
 

@@ -116,7 +116,7 @@ class _MujocoRunner:
 class PhysicsMeter:
     """Counts the RL steps the C backend simulates and keeps a uniform sample of them (a
     reservoir of ``keep`` rows drawn from every 16th call), to measure the rollout-alone
-    ceiling on the very physics a run simulated (:meth:`ceiling`). Its random draws are its
+    ceiling on the very physics a run simulated (`ceiling`). Its random draws are its
     own: they do not touch any run's keys."""
 
     EVERY = 16
@@ -168,7 +168,7 @@ class PhysicsMeter:
 
     def ceiling(self, runner: _MujocoRunner, batch: int = 256, repeats: int = 2
                 ) -> float | None:
-        """:func:`ceiling` on the sampled rows (None when nothing was sampled)."""
+        """`ceiling` on the sampled rows (None when nothing was sampled)."""
         return ceiling(runner, *self._samples(), batch=batch, repeats=repeats,
                        native=self.native)
 
@@ -215,7 +215,7 @@ def mujoco_runner(nthread: int | None = None) -> _MujocoRunner:
 
 class _Native:
     """The compiled step handler (``_mjstep``, built when the package installs), set up on
-    its own MjData per thread by :func:`step_handler` where it was built."""
+    its own MjData per thread by `step_handler` where it was built."""
 
     KEEP = 4096
 

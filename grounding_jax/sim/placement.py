@@ -62,7 +62,7 @@ def check(placement: Any, field: str = "placement", reach: tuple[int, ...] = (0,
         field: the name the error messages use.
         reach: the slots that must lie in the reachable region (the others only on the
             table, within ``TABLE_HALF`` of the origin: a moving target's scene parks its
-            neighbours out of reach, see :func:`moving`).
+            neighbours out of reach, see `moving`).
 
     Raises:
         ValueError: naming the bad value and the allowed region (NaN or infinite values, a
@@ -101,7 +101,7 @@ def check(placement: Any, field: str = "placement", reach: tuple[int, ...] = (0,
 
 def sample(key: jax.Array) -> jax.Array:
     """A random placement ``[3, 3]``: centres uniform over the region given the spacing
-    (rejection among :data:`CANDIDATES` uniform triples), ranked left to right, yaw uniform
+    (rejection among `CANDIDATES` uniform triples), ranked left to right, yaw uniform
     in [0, 2 pi). Pure and ``vmap``-able.
     """
     k_xy, k_yaw = jax.random.split(key)
@@ -148,8 +148,8 @@ def population(xy: jax.Array, grid: tuple[int, int]) -> jax.Array:
 
 def target_units(xy: jax.Array, target_obs: str) -> jax.Array:
     """The actor's target units for table coordinates ``xy`` (metres, ``[2]``):
-    :func:`normalise` for ``target_obs="xy"``, :func:`population` on
-    ``tasks.POPULATION_GRID`` for ``"population"`` (see :class:`tasks.TaskSet`)."""
+    `normalise` for ``target_obs="xy"``, `population` on
+    ``tasks.POPULATION_GRID`` for ``"population"`` (see `tasks.TaskSet`)."""
     if target_obs == "population":
         return population(xy, tasks.POPULATION_GRID)
     if target_obs == "xy":
@@ -218,13 +218,13 @@ def pointing_pose(xy: jax.Array) -> jax.Array:
 
 def touch_pose(xy: jax.Array) -> jax.Array:
     """The touching pose (radians, ``[4]``) for an object at ``xy`` (metres), interpolated in
-    :func:`touch_map` as :func:`pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
+    `touch_map` as `pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
     return _interpolate(touch_map(), xy)
 
 
 def push_pose(xy: jax.Array) -> jax.Array:
     """The pushing pose (radians, ``[4]``) for an object at ``xy`` (metres), interpolated in
-    :func:`push_map` as :func:`pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
+    `push_map` as `pointing_pose` is. Pure, ``jit``- and ``vmap``-able."""
     return _interpolate(push_map(), xy)
 
 
@@ -235,7 +235,7 @@ def moving(key: jax.Array, speed: Any) -> tuple[jax.Array, jax.Array]:
     The target (the left slot) starts at a random x in the region and y within 2 cm of the
     region's left edge and slides right (+y) at ``speed`` m/s until the region's right edge
     (``Env.step`` stops it there): 20-22 cm of path. Its neighbours are parked out of reach
-    (:data:`PARKED`), so the arm that follows it meets nothing on the way. Pure and
+    (`PARKED`), so the arm that follows it meets nothing on the way. Pure and
     ``vmap``-able over keys and speeds.
     """
     k_x, k_y, k_yaw = jax.random.split(key, 3)

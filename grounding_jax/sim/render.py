@@ -1,10 +1,10 @@
 """Seeing the robot act: frames of an episode from the third-person camera, and videos.
 
-:func:`frames` draws a :meth:`Robot.perform <grounding_jax.robot.trained.Robot.perform>` result
-or any single-episode env trajectory (a :class:`~grounding_jax.sim.env.State` stacked over
-steps) from the ``observer`` camera, which faces the robot across the table; :func:`write_video`
+`frames` draws a `Robot.perform <grounding_jax.robot.trained.Robot.perform>` result
+or any single-episode env trajectory (a `State` stacked over
+steps) from the ``observer`` camera, which faces the robot across the table; `write_video`
 writes them as MP4 or GIF (through mediapy and an ffmpeg binary: ``imageio-ffmpeg``'s, installed
-with the package, or one on ``PATH``); :func:`strip` lays a few frames side by side for a PNG.
+with the package, or one on ``PATH``); `strip` lays a few frames side by side for a PNG.
 The command-line front end is ``python -m grounding_jax.show``.
 """
 
@@ -23,7 +23,7 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
 def trajectory_of(episode: Any) -> tuple[np.ndarray, int]:
-    """``(qpos [steps, nq], layout)`` of a :meth:`Robot.perform` result or of a one-episode
+    """``(qpos [steps, nq], layout)`` of a `Robot.perform` result or of a one-episode
     env trajectory.
 
     Raises:
@@ -47,7 +47,7 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
     """Render an episode, one frame per RL step.
 
     Args:
-        episode: a :meth:`Robot.perform` result (its ``trajectory``) or an env trajectory of
+        episode: a `Robot.perform` result (its ``trajectory``) or an env trajectory of
             one episode (``State`` with a leading steps axis, e.g. from ``jax.lax.scan``).
         camera: ``"observer"`` (third person) or ``"eye"`` (the robot's view, arm drawn).
         width: frame width in pixels.
@@ -115,7 +115,7 @@ def write_video(path: str | os.PathLike, images: np.ndarray, fps: int = 25) -> p
 
     Args:
         path: the file to write.
-        images: ``uint8 [frames, height, width, 3]``, e.g. from :func:`frames`.
+        images: ``uint8 [frames, height, width, 3]``, e.g. from `frames`.
         fps: frames per second.
 
     Returns:
@@ -147,7 +147,7 @@ def write_video(path: str | os.PathLike, images: np.ndarray, fps: int = 25) -> p
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> pathlib.Path:
-    """Write an RGB image (``uint8 [height, width, 3]``, e.g. from :func:`strip`) as a PNG,
+    """Write an RGB image (``uint8 [height, width, 3]``, e.g. from `strip`) as a PNG,
     whole or not at all."""
     import cv2
 

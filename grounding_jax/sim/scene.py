@@ -314,7 +314,7 @@ def place_objects(qpos: np.ndarray, layout: int, placement: np.ndarray | None = 
                   ) -> np.ndarray:
     """Write the resting object poses of ``layout`` into ``qpos`` (in place; also returned):
     in the paper's slots, or in those of a ``placement`` ``[3, 3]`` (x, y, yaw per slot; see
-    :mod:`grounding_jax.sim.placement`)."""
+    `grounding_jax.sim.placement`)."""
     idx = index()
     pos = object_positions()
     for shape, slot in enumerate(layout_shape_slots()[layout]):

@@ -1,7 +1,7 @@
 """Scripted (non-learned) arm motions: for tests, benchmarks and the backend cross-check.
 
 A script is a list of joint-space waypoints, one per RL step, found by IK on a Cartesian path
-of the palm; :func:`tracking_action` turns it into env actions by closed-loop tracking.
+of the palm; `tracking_action` turns it into env actions by closed-loop tracking.
 """
 
 from __future__ import annotations

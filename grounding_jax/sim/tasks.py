@@ -2,15 +2,15 @@
 positions, target words, and the layout of the actor's observation and action. The env, the
 learner's network sizes, the ESN's output size and the AN take their sizes from here.
 
-A :class:`TaskSet` is a tuple of :class:`Action` s. The paper's (``"paper"``: point, touch,
-push) is the default everywhere; another one is registered with :func:`register` and chosen
+A `TaskSet` is a tuple of `Action` s. The paper's (``"paper"``: point, touch,
+push) is the default everywhere; another one is registered with `register` and chosen
 by name (``EnvConfig(task_set=...)``, ``CaclaConfig(task_set=...)``,
 ``ESNConfig(task_set=...)``), so configs stay plain JSON.
 
 Observation (``obs_size``; 11 for the paper): the 4 arm joints (scaled to [-1, 1]), the touch
 bit, the action one-hot, then where the target is: the position one-hot (the paper's,
 ``target_obs="position"``), or its table coordinates for objects placed anywhere (see
-:mod:`grounding_jax.sim.placement`) -- (x, y) scaled to [-1, 1] over the reachable region
+`grounding_jax.sim.placement`) -- (x, y) scaled to [-1, 1] over the reachable region
 (``target_obs="xy"``) or as a population code of Gaussian bumps on a 3 x 7 grid over the
 region (``target_obs="population"``: the ``"free"`` task set); with ``hand_obs`` (the
 ``"free_hand"`` task set) three more units say where the palm is relative to the target.
@@ -18,8 +18,8 @@ Action (``action_size`` = 4): the change of the 4 scaled joints.
 
 Rewards see the per-step terms the env measures (``point_l1``: L1 distance of the scaled
 joints to the position's stored pointing pose; ``touch_l1`` / ``push_l1``: ... to the touching
-/ pushing pose of where the target is meant to be (:func:`placement.touch_pose`,
-:func:`placement.push_pose`; 0 in the paper's family, whose rewards use neither);
+/ pushing pose of where the target is meant to be (`placement.touch_pose`,
+`placement.push_pose`; 0 in the paper's family, whose rewards use neither);
 ``palm_target_dist``: metres
 from the palm to the target's start; ``palm_target_now``: ... to where the target is now;
 ``palm_over_target`` / ``palm_target_across``: the palm's height over the target's centre
@@ -130,7 +130,7 @@ class TaskSet:
         target_obs: ``"position"`` (the paper: a left/middle/right one-hot), ``"xy"`` (the
             target's table coordinates, scaled to [-1, 1] over the reachable region) or
             ``"population"`` (those coordinates as Gaussian bumps on ``POPULATION_GRID``; see
-            :func:`placement.population`).
+            `placement.population`).
         hand_obs: three more units after the target's: where the palm is relative to the
             target, ``tanh((palm - target) / hand_scale)`` per axis (x, y, z), the target's
             (x, y) being what the actor is told (the TL's estimate when the robot performs)
@@ -248,7 +248,7 @@ def _free_push_reward(t: Terms, params: Any) -> jax.Array:
 #: while the arm touches a non-target object or one has moved (with objects anywhere no fixed
 #: detour around the neighbours exists), and touch, like point, reaches for a pose: minus the
 #: L1 distance to the touching pose of where the target is meant to be (``touch_l1``: the
-#: palm pressed on its top; :func:`placement.touch_pose`), plus ``touch_bonus`` while the arm
+#: palm pressed on its top; `placement.touch_pose`), plus ``touch_bonus`` while the arm
 #: touches it, less ``touch_moved_penalty`` per metre it has moved (instead of the paper's
 #: penalty for touching it, under which an actor hovers).
 FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
@@ -257,7 +257,7 @@ FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
                target_obs="population")
 #: The free family with the hand units (``hand_obs``): the actor also sees where its palm is
 #: relative to the target, as a robot watching its hand and the object would (the paper's
-#: "online visual feedback"). Same actions, rewards and success rules as :data:`FREE`.
+#: "online visual feedback"). Same actions, rewards and success rules as `FREE`.
 FREE_HAND = dataclasses.replace(FREE, name="free_hand", hand_obs=True)
 #: The task sets that cannot be replaced (saved agents name them).
 BUILT_IN = (PAPER, FREE, FREE_HAND)

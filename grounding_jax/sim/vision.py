@@ -5,11 +5,11 @@ Rendering is headless through EGL (or OSMesa), chosen here at call time, so it w
 the backend; by default EGL is tried first, then OSMesa.
 
 The pipeline (paper, section 2.1 and Fig 4), each step a small pure function:
-1. :func:`to_black_and_white` -- grey, then Otsu threshold: objects black on a white table;
-2. :func:`crop_group` -- the bounding box of all three objects together (plus a margin);
-3. :func:`invert` -- objects white on black;
-4. :func:`edges` -- the outline of each white region (morphological gradient);
-5. :func:`to_bitmap` -- resize to 60 x 20 and binarise: 1200 values in {0, 1}.
+1. `to_black_and_white` -- grey, then Otsu threshold: objects black on a white table;
+2. `crop_group` -- the bounding box of all three objects together (plus a margin);
+3. `invert` -- objects white on black;
+4. `edges` -- the outline of each white region (morphological gradient);
+5. `to_bitmap` -- resize to 60 x 20 and binarise: 1200 values in {0, 1}.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def _make_context(width: int, height: int):
 class EyeRenderer:
     """Offscreen renderer of a scene camera: by default the robot's ``eye`` (robot meshes and
     helpers hidden), or ``"observer"``, the third-person camera facing the robot (for people;
-    see :mod:`grounding_jax.sim.render`)."""
+    see `grounding_jax.sim.render`)."""
 
     def __init__(self, width: int = WIDTH, height: int = HEIGHT, camera: str = "eye") -> None:
         cameras = tuple(scene.model().camera(i).name for i in range(scene.model().ncam))
@@ -94,7 +94,7 @@ class EyeRenderer:
         Args:
             layout: which shape and colour stands in each slot (0..35).
             placement: ``None`` (the paper's slots) or a placement ``[3, 3]`` (see
-                :mod:`grounding_jax.sim.placement`).
+                `grounding_jax.sim.placement`).
             qpos: a full physics ``qpos`` (e.g. a frame of an episode) to draw instead of
                 the resting objects; ``layout`` still gives the colours.
             arm: draw the robot's meshes too (for people; the bitmaps never show the arm).
@@ -177,10 +177,10 @@ def bitmap_from_image(rgb: np.ndarray, window: tuple[int, int, int, int] | None 
         rgb: the camera image ``[H, W, 3]``.
         window: ``None`` crops to the objects' group (the paper: where the objects stand
             relative to each other); a fixed pixel window ``(x0, y0, x1, y1)`` (e.g.
-            :func:`table_window`) keeps where they stand on the table.
+            `table_window`) keeps where they stand on the table.
         size: the bitmap's (width, height).
         binary: binarise the bitmap (the paper) or keep grey edge levels (see
-            :func:`to_bitmap`).
+            `to_bitmap`).
     """
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"image: expected an RGB image [H, W, 3], got shape {rgb.shape}")

@@ -1,7 +1,7 @@
-"""Hyperparameter sweeps from TOML files: the spec (:mod:`~grounding_jax.sweep.spec`, a
-search's space in :mod:`~grounding_jax.sweep.space`), the runner
-(:mod:`~grounding_jax.sweep.runner`; searches in :mod:`~grounding_jax.sweep.search`) and the
-summaries (:mod:`~grounding_jax.sweep.summary`); ``python -m grounding_jax.sweep FILE`` runs
+"""Hyperparameter sweeps from TOML files: the spec (`spec`, a
+search's space in `space`), the runner
+(`runner`; searches in `search`) and the
+summaries (`summary`); ``python -m grounding_jax.sweep FILE`` runs
 one.
 
 The public names are imported on first use, so that the command line takes over SIGINT

@@ -1,7 +1,7 @@
 """The sweep runner: each static group of a sweep as one sharded, vmapped batch, with
 checkpoints, resumption, and the results written together.
 
-It knows the modules it trains only through their :class:`~grounding_jax.sweep.spec.Adapter`.
+It knows the modules it trains only through their `Adapter`.
 """
 
 from __future__ import annotations
@@ -154,7 +154,7 @@ def trained_agents(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps",
         spec: the sweep, as it was run.
         out: the parent folder it was run under.
         seed: the seed it was run with, if not ``spec.seed``.
-        key: the key it was run with, if :func:`run` was given one.
+        key: the key it was run with, if `run` was given one.
 
     Returns:
         A list with, per point (``spec.points()`` order): ``(episode, agents [seeds],
@@ -203,7 +203,7 @@ def run(spec: SweepSpec, out: str | pathlib.Path = "results/sweeps", resume: boo
     earlier ones together, only once all of them are written.
 
     Args:
-        spec: a validated sweep (:func:`load_spec`).
+        spec: a validated sweep (`load_spec`).
         out: parent folder of the sweep's folder.
         resume: continue from the sweep's checkpoints (bit-identical to an uninterrupted run;
             a damaged newest step falls back to the newest intact one, and says so).

@@ -555,7 +555,7 @@ def run_pbt(spec: SweepSpec, folder: pathlib.Path, resume: bool, keys: tuple,
             name: str = "population") -> list[Trial]:
     """Population-based training: ``trials`` members train side by side; every ``interval``
     episodes the bottom ``fraction`` copy the agents and hyperparameters of members drawn
-    from the top ``fraction``, then perturb them (:func:`~grounding_jax.sweep.space.perturb`)
+    from the top ``fraction``, then perturb them (`perturb`)
     -- all inside the batch, nothing compiled again. Each member's lineage is recorded.
 
     With ``schedule`` (``[(units, params)]``) it instead replays that schedule on ``spec``'s

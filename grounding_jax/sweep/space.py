@@ -30,7 +30,7 @@ class Dim:
 
     Attributes:
         name: the field.
-        kind: one of :data:`KINDS`.
+        kind: one of `KINDS`.
         low, high: the range (``uniform``, ``log``, ``int``).
         choices: the values (``choice``).
     """

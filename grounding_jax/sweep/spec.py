@@ -35,8 +35,8 @@ Writes ``<out>/<name>/``: ``sweep.json`` (spec, per-point summaries, curves), ``
 (one row per run), ``<figure>.png`` / ``<figure>.json``, and ``checkpoints/``.
 
 Instead of a grid, ``search = "random" | "optuna" | "asha" | "pbt"`` searches a ``[space]``
-of ranges (:mod:`~grounding_jax.sweep.space`) with ``trials`` configurations, and
-``holdout_seeds`` retrains the winner on fresh seeds (:mod:`~grounding_jax.sweep.search`)::
+of ranges (`space`) with ``trials`` configurations, and
+``holdout_seeds`` retrains the winner on fresh seeds (`search`)::
 
     search = "asha"
     trials = 27
@@ -106,7 +106,7 @@ def traced_fields(rules: dict[str, Rule], defaults: Any, names: Sequence[str] | 
 @dataclasses.dataclass(frozen=True)
 class Adapter:
     """What the sweep runner needs from one module; the runner itself does not branch on
-    modules, and imports none: adapters are registered from above (:func:`register`, or the
+    modules, and imports none: adapters are registered from above (`register`, or the
     ``grounding_jax.sweep_adapters`` entry point group, which names the package's own).
 
     Attributes:
@@ -124,7 +124,7 @@ class Adapter:
         success: the names of those rates (metrics ``success_<name>``).
         lower_is_better: the metrics where lower is better (for the others higher is).
         saved_like: ``saved_like(config, keys, n_evals) -> the structure of a group's
-            checkpoint`` with an ``"agents"`` entry, for :func:`~grounding_jax.sweep.runner.
+            checkpoint`` with an ``"agents"`` entry, for `
             trained_agents`; None: its agents cannot be read back.
         pieces: ``pieces(config) -> Pieces`` for one group's static config, or None: the
             module trains in one piece (grid, random and Optuna searches only).
