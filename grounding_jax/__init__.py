@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from grounding_jax.robot.trained import Robot, load
+    from grounding_jax.robot.trained import Robot, load, save
     from grounding_jax.sim.env import Env, EnvConfig, EnvParams, State, Task, make_env, make_task
     from grounding_jax.sim.render import frames, write_video
 
@@ -23,6 +23,7 @@ from grounding_jax.core.jaxcache import enable_compilation_cache
 _LAZY = {**{n: "grounding_jax.sim.env" for n in ("Env", "EnvConfig", "EnvParams", "State", "Task",
                                              "make_env", "make_task")},
          "Robot": "grounding_jax.robot.trained", "load": "grounding_jax.robot.trained",
+         "save": "grounding_jax.robot.trained",
          "frames": "grounding_jax.sim.render", "write_video": "grounding_jax.sim.render"}
 
 
@@ -30,4 +31,5 @@ __getattr__, __dir__ = lazy_names("grounding_jax", _LAZY, globals())
 
 
 __all__ = ["Env", "EnvConfig", "EnvParams", "State", "Task", "make_env", "make_task",
-           "Robot", "load", "frames", "write_video", "enable_compilation_cache", "__version__"]
+           "Robot", "load", "save", "frames", "write_video", "enable_compilation_cache",
+           "__version__"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -152,3 +153,14 @@ def test_the_paper_familys_agents_are_saved_beside_the_robots_own(tmp_path, modu
     with pytest.raises(ValueError, match="saved_agent"):
         _save(tmp_path / "bad", modules, agents=agents, saved_agent=3)
     assert not (tmp_path / "bad").exists()
+
+
+def test_save_is_public_and_a_loaded_robot_saves_again_as_the_docs_show(tmp_path):
+    robot = gj.load(pathlib.Path(__file__).resolve().parents[1] / "results" / "quick" / "modules")
+    gj.save(tmp_path / "mine", robot.tl.params, robot.tl.hyper, robot.al.agent,
+            robot.al.config, robot.an.net, robot.an.config, robot.env_config)
+    again = gj.load(tmp_path / "mine")
+    for a, b in ((robot.tl.params, again.tl.params), (robot.al.agent, again.al.agent)):
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+            np.testing.assert_array_equal(x, y)
+    assert again.al.config == robot.al.config and again.env_config == robot.env_config
