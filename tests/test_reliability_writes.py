@@ -15,25 +15,15 @@ import textwrap
 
 import numpy as np
 import pytest
+import test_reliability
 
 from grounding_jax import sweep
 from grounding_jax.core import guard
 from grounding_jax.core.io import Staged, recover_staged
 
-TINY = textwrap.dedent("""
-    module = "al"
-    seeds = 2
-    chunk = 1
-    metric = "td_error"
-    [params]
-    phase1_episodes = 2
-    phase2_episodes = 6
-    actor_hidden = 4
-    critic_hidden = 4
-    episode_length = 10
-    [grid]
-    critic_lr = [0.01, 0.02]
-""")
+#: the reliability tests' tiny AL sweep, shorter: 8 episodes
+TINY = test_reliability.TINY.replace("phase2_episodes = 40", "phase2_episodes = 6")
+assert "phase2_episodes = 6" in TINY
 
 
 def _sweep(cwd: pathlib.Path, *args: str, env: dict | None = None
