@@ -10,7 +10,7 @@ import grounding_jax
 
 PACKAGE = pathlib.Path(grounding_jax.__file__).resolve().parent
 #: bottom to top; the package's own top-level modules (the public names, the CLIs) sit above
-LAYERS = ("core", "sim", "learn", "robot", "sweep", "paper")
+LAYERS = ("core", "sim", "envs", "learn", "robot", "sweep", "paper")
 TOP = len(LAYERS)
 
 

@@ -25,8 +25,7 @@ from flax import struct
 
 from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.learn import cacla, learners
-from grounding_jax.sim import placement as free
-from grounding_jax.sim import rollout, scene, tasks
+from grounding_jax.sim import rollout, sampler, tasks
 from grounding_jax.sim.env import (
     DEFAULT_PARAMS,
     Env,
@@ -43,7 +42,7 @@ SCHEDULES = {"paper": (150, 300), "no_tricks": (0, 2000)}
 
 #: Where training episodes put the objects: the paper's slots, or anywhere
 #: (`placement.sample`, one placement per episode).
-PLACEMENTS = ("fixed", "random")
+PLACEMENTS = sampler.PLACEMENTS
 
 #: What each count of `ALConfig` accepts (its ``__post_init__`` and the sweep runner
 #: read it).
@@ -111,6 +110,12 @@ class ALConfig:
     @property
     def episodes(self) -> int:
         return self.phase1_episodes + self.phase2_episodes
+
+    @property
+    def sampler(self) -> sampler.TaskSampler:
+        """The `sampler.TaskSampler` its episodes' tasks are drawn by."""
+        return sampler.TaskSampler(actions=self.actions, positions=self.positions,
+                                   random_layout=self.random_layout, placement=self.placement)
 
     @property
     def learning(self) -> learners.Learner:
@@ -207,20 +212,12 @@ class _Parts:
         self.env = Env(config.env)
         self.lrn = config.learning
         self.length = config.env.episode_length
-        self._actions = jnp.asarray(config.actions, jnp.int32)
-        self._positions = jnp.asarray(config.positions, jnp.int32)
-        self._n_layouts = len(scene.LAYOUTS) if config.random_layout else 1
+        self.sampler = config.sampler
 
     def draw(self, key: jax.Array) -> tuple[Task, jax.Array, jax.Array]:
         """An episode's key -> (task, reset key, one exploration key per step)."""
         k_task, k_reset, k_steps = jax.random.split(key, 3)
-        ka, kp, kl = jax.random.split(k_task, 3)
-        task = Task(action=jax.random.choice(ka, self._actions),
-                    position=jax.random.choice(kp, self._positions),
-                    layout=jax.random.randint(kl, (), 0, self._n_layouts, jnp.int32))
-        if self.config.placement == "random":  # a key of its own: the other draws stay
-            task = task.replace(placement=free.sample(jax.random.fold_in(k_task, 1)))
-        return task, k_reset, jax.random.split(k_steps, self.length)
+        return self.sampler.sample(k_task), k_reset, jax.random.split(k_steps, self.length)
 
     def learn(self, agent, state, k: jax.Array, lhp, hp: ALHyper):
         """Act, step the env, update the learner (not where the episode has ended).

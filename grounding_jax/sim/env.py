@@ -373,6 +373,11 @@ class Env:
                                                      jnp.float32))
         self._dt = float(scene.model().opt.timestep) * config.substeps  # seconds per RL step
 
+    @property
+    def dt(self) -> float:
+        """Seconds of simulated time per RL step (``substeps`` physics steps)."""
+        return self._dt
+
     # ------------------------------------------------------------------ helpers
     def _place(self, task: Task) -> jax.Array:
         """qpos of the objects' free joints for a task's layout and placement: [3 shapes, 7]."""
