@@ -96,7 +96,12 @@ def test_schedules_are_configs():
 def test_training_in_chunks_of_256_agents_equals_each_alone(small_train):
     keys = jax.random.split(jax.random.key(5), 256)
     hp = al.ALHyper()
-    agents, m = al.train_in_chunks(SMALL, keys, hp, [1, 3, 4])
+    seen = []
+    agents, m = al.train_in_chunks(SMALL, keys, hp, [1, 3, 4],
+                                   progress_fn=lambda n, ms: seen.append((n, ms)))
+    assert [s["train/episodes"] for _, s in seen] == [1, 3, 4]
+    assert seen[-1][0] == int(np.asarray(m["steps"]).sum()) > seen[0][0] > 0
+    assert seen[-1][1]["train/return"] == pytest.approx(float(np.asarray(m["return"]).mean()))
     for i in (0, 1, 255):
         agent, mi = small_train(keys[i], hp)
         for k in mi:

@@ -111,6 +111,35 @@ def test_brax_sac_trains_on_the_env_untouched():
     assert np.isfinite(float(metrics["eval/episode_reward"]))
 
 
+def test_cacla_trains_on_a_standard_brax_env_and_its_return_improves():
+    """The project's AL trainer (the one train.py uses), given Brax's inverted pendulum."""
+    from brax import envs as brax_envs
+    from brax.envs.wrappers.training import EpisodeWrapper
+
+    from grounding_jax.learn import cacla
+
+    env = EpisodeWrapper(brax_envs.get_environment("inverted_pendulum"), 100, 1)
+    learner = cacla.CaclaConfig(actor_hidden=16, critic_hidden=16,
+                                obs_dim=env.observation_size, act_dim=env.action_size)
+    config = al.ALConfig(learner=learner, phase1_episodes=0, phase2_episodes=200)
+    hp = al.ALHyper(learner=cacla.CaclaHyper(sigma=0.2, gamma=0.9, actor_lr=0.01,
+                                             critic_lr=0.01, actor_init_scale=0.1))
+    train = jax.jit(jax.vmap(al.make_train(config, env=env), in_axes=(0, None)))
+    _, metrics = train(jax.random.split(jax.random.key(0), 4), hp)
+    ret = np.asarray(metrics["return"])
+    first, last = ret[:, :40].mean(1), ret[:, -40:].mean(1)
+    assert np.all(last > first), (first, last)
+    assert np.median(last) > 1.5 * np.median(first), (first, last)
+
+
+def test_the_learner_s_sizes_must_match_the_env_s():
+    from brax import envs as brax_envs
+
+    env = brax_envs.get_environment("inverted_pendulum")
+    with pytest.raises(ValueError, match="learner.obs_dim"):
+        al.make_train(al.ALConfig(), env=env)
+
+
 def test_brax_done_is_a_termination_and_the_time_limit_brax_s_truncation():
     from brax.envs.wrappers import training
 

@@ -21,10 +21,11 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
-from grounding_jax.learn import cacla, learners
+from grounding_jax.learn import cacla, learners, on_env
 from grounding_jax.sim import rollout, sampler, tasks
 from grounding_jax.sim.env import (
     DEFAULT_PARAMS,
@@ -416,7 +417,7 @@ def _loop_maker(loop: str):
     return make_steps if _check_loop(loop) == "auto_reset" else make_episodes
 
 
-def make_train(config: ALConfig, loop: str = "auto_reset"):
+def make_train(config: ALConfig, loop: str = "auto_reset", env: Any = None):
     """Build ``train(key, hp) -> (agent, metrics)`` for one agent (vmap it for a batch).
 
     The key is split once into the agent's initial weights and one key per episode (task draw,
@@ -426,6 +427,13 @@ def make_train(config: ALConfig, loop: str = "auto_reset"):
         config: static config.
         loop: ``"auto_reset"`` (`make_steps`, the default) or ``"lockstep"``
             (`make_episodes`); both give the same agent and metrics, bit for bit.
+        env: train on this env instead of ``config.env``'s: any env with ``reset(rng)``,
+            ``step(state, action)``, ``observation_size`` and ``action_size`` (a Brax env,
+            `grounding_jax.envs.load`); the learner's sizes must match it
+            (``CaclaConfig(obs_dim=..., act_dim=...)``). Episodes last the env's
+            ``episode_length`` if it has one, else ``config.env.episode_length``, and run in
+            lockstep (`grounding_jax.learn.on_env`); ``metrics`` then hold ``return``,
+            ``final_reward``, ``td_error`` and ``steps``.
 
     Returns:
         ``metrics``: per-episode arrays ``[episodes]``: ``return`` (sum of rewards over the
@@ -434,7 +442,11 @@ def make_train(config: ALConfig, loop: str = "auto_reset"):
         ``touched_target_late`` (touched the target in one of the last 10 steps),
         ``wrong_moved``, ``target_moved``, ``steps``, ``action``, ``position``.
     """
-    run = _loop_maker(loop)(config)
+    if env is None:
+        run = _loop_maker(loop)(config)
+    else:
+        length = on_env.check_env(env, config.learner) or config.env.episode_length
+        run = on_env.make_episodes(env, config.learner, length)
 
     def train(key: jax.Array, hp: ALHyper) -> tuple[Any, dict[str, jax.Array]]:
         agent, keys, plan = schedule(key, config, hp)
@@ -464,7 +476,7 @@ def _batched_schedule(config: ALConfig, hp_axes: tuple, hp_treedef):
 
 def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[int],
                     on_stop=None, start: tuple | None = None, sharding=None,
-                    loop: str = "auto_reset"):
+                    loop: str = "auto_reset", progress_fn=None):
     """Train a batch of agents (``keys`` [agents], ``hp`` batched or shared) in a host loop
     over chunks of episodes ending at each of ``stops`` (the last must be
     ``config.episodes``).
@@ -482,6 +494,9 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
         sharding: a ``jax.sharding.Sharding`` of the agent axis (e.g. over local devices);
             None keeps the default device.
         loop: ``"auto_reset"`` (default) or ``"lockstep"``, as in `make_train`.
+        progress_fn: ``progress_fn(num_steps, metrics)`` after each chunk, as Brax's trainers
+            call it: ``num_steps`` the env steps taken so far by all agents together,
+            ``metrics`` floats (see `progress_metrics`).
 
     Returns:
         (agents, metrics [agents, episodes]) -- equal to ``vmap(make_train(config))``.
@@ -513,7 +528,20 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
         done = stop
         if on_stop is not None:
             on_stop(stop, agents, metrics)
+        if progress_fn is not None:
+            progress_fn(*progress_metrics(metrics, stop))
     return agents, metrics
+
+
+def progress_metrics(metrics: dict[str, Any], episodes: int) -> tuple[int, dict[str, float]]:
+    """``(num_steps, scalars)`` of the first ``episodes`` of ``metrics`` ``[agents,
+    episodes]``, on the host (NumPy): the env steps all agents took, and per metric
+    ``train/<name>`` its mean over agents and those episodes, plus ``train/episodes``."""
+    host = {k: np.asarray(v)[:, :episodes] for k, v in metrics.items()}
+    scalars = {f"train/{k}": float(v.mean()) for k, v in host.items()
+               if k not in ("action", "position")}
+    scalars["train/episodes"] = float(episodes)
+    return int(host["steps"].sum()) if "steps" in host else 0, scalars
 
 
 def make_eval(env: Env | EnvConfig | None = None, steps: int | None = None,

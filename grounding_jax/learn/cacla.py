@@ -47,7 +47,8 @@ from grounding_jax.sim import tasks
 #: What each size of `CaclaConfig` accepts (its ``__post_init__`` and the sweep
 #: runner read it).
 CONFIG_RULES: dict[str, Rule] = {name: integer_at_least(1) for name in (
-    "actor_hidden", "critic_hidden", "max_var_repeats")}
+    "actor_hidden", "critic_hidden", "max_var_repeats")} | {
+    "obs_dim": integer_at_least(0), "act_dim": integer_at_least(0)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +68,8 @@ class CaclaConfig:
             share a second pair. Every action keeps a slot (the leaves get an action axis;
             actions that share a network hold equal copies, updated together) and the
             observation's action one-hot picks it (see `head`).
+        obs_dim, act_dim: the networks' input and output units for an env of another shape
+            (a Brax env, say); 0, the default, takes them from ``task_set``.
     """
 
     actor_hidden: int = 40
@@ -75,9 +78,14 @@ class CaclaConfig:
     max_var_repeats: int = 10
     task_set: str = tasks.PAPER.name
     heads: tuple[int, ...] = ()
+    obs_dim: int = 0
+    act_dim: int = 0
 
     def __post_init__(self) -> None:
         check_config(self, CONFIG_RULES)
+        if (self.obs_dim or self.act_dim) and self.heads:
+            raise ValueError("heads: networks per action need the task set's observation "
+                             "(its action one-hot); accepted with obs_dim/act_dim: ()")
         n = tasks.get(self.task_set).n_actions
         heads = self.heads
         try:
@@ -96,12 +104,12 @@ class CaclaConfig:
     @property
     def obs_size(self) -> int:
         """Input units of both networks."""
-        return tasks.get(self.task_set).obs_size
+        return self.obs_dim or tasks.get(self.task_set).obs_size
 
     @property
     def action_size(self) -> int:
         """Output units of the actor."""
-        return tasks.get(self.task_set).action_size
+        return self.act_dim or tasks.get(self.task_set).action_size
 
 
 @struct.dataclass
