@@ -258,12 +258,12 @@ def an_experiments(key, out: pathlib.Path, st: dict, env_config, al_config, agen
     """The AN results (ESN naming, Fig 15) and the SOM (Fig 12), from AL agent 0; the trained
     TL, AL agent 0 and AN are saved to ``out/../modules`` with the configs that made them (and
     the free family's robot, ``free_modules``, beside them)."""
-    import jax
 
+    from grounding_jax.core import trees
     from grounding_jax.learn import an
     from grounding_jax.robot import trained
 
-    agent = jax.tree.map(lambda x: x[0], agents)
+    agent = trees.take(agents, 0)
     res, modules = an.run(key, out, agent, seeds=st["an_seeds"], tl_epochs=st["an_tl_epochs"],
                           env_config=env_config)
     trained.save(out.parent / "modules", modules["tl_params"], modules["tl_hyper"], agent,
@@ -302,6 +302,7 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
     import jax
     import numpy as np
 
+    from grounding_jax.core import trees
     from grounding_jax.paper import al_eval
     from grounding_jax.paper import beyond as B
     from grounding_jax.robot import trained
@@ -312,7 +313,7 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
     free, agents = B.train(k_train, st["free_seeds"], st["free_phase1"], st["free_phase2"],
                            st["free_placements"], backend=backend,
                            checkpoints=((st["free_phase1"] + st["free_phase2"]) // 2,))
-    agent = jax.tree.map(lambda x: x[free["saved_agent"]], agents)
+    agent = trees.take(agents, free["saved_agent"])
     modules = {"xy_params": xy_params, "xy_config": cfg, "agent": agent, "agents": agents,
                "saved_agent": free["saved_agent"],
                "al_config": B.FREE_LEARNER, "env_config": B.env_config(backend),
@@ -327,7 +328,7 @@ def beyond_robot(key_free, out: pathlib.Path, st: dict, backend: str, xy_params,
             for part, w in words.items()}
     judge = al_eval.make_success(Env(modules["env_config"]), batch=eyes["eyes"][0])
     for part, (batch, err) in eyes.items():
-        eyes_out = judge(jax.tree.map(lambda x: x[None], agent), k_eyes_eval, B.hyper().env,
+        eyes_out = judge(trees.add_axis(agent), k_eyes_eval, B.hyper().env,
                          batch=batch)
         free[part] = {**B.success(eyes_out), "placements": st["free_eyes_placements"],
                       "words": list(words[part]), "tl_error_cm_median": float(np.median(err)),

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from grounding_jax.core import trees
 from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.learn import cacla, learners, on_env
 from grounding_jax.sim import rollout, sampler, tasks
@@ -509,7 +510,7 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
                                      is_leaf=lambda x: x is None)
     run = _batched_episodes(config, tuple(axes), treedef, loop)
     agents, ep_keys, plan = _batched_schedule(config, tuple(axes), treedef)(keys, hp)
-    plan = jax.tree.map(lambda x: x[0], plan)  # the same for every agent
+    plan = jax.tree.map(np.asarray, trees.take(plan, 0))  # the same for every agent
     done = 0
     metrics = None
     if start is not None:
@@ -522,9 +523,8 @@ def train_in_chunks(config: ALConfig, keys: jax.Array, hp: ALHyper, stops: list[
         agents, m = run(agents, ep_keys[:, chunk], jax.tree.map(lambda x, c=chunk: x[c], plan),
                         hp)
         if metrics is None:
-            metrics = jax.tree.map(lambda x: jnp.zeros(x.shape[:1] + (config.episodes,),
-                                                       x.dtype), m)
-        metrics = jax.tree.map(lambda a, b, c=chunk: a.at[:, c].set(b), metrics, m)
+            metrics = trees.zeros_columns(m, config.episodes)
+        metrics = trees.put_columns(metrics, m, done)
         done = stop
         if on_stop is not None:
             on_stop(stop, agents, metrics)

@@ -102,6 +102,7 @@ def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 1
             "position": data.labels[config], "config": config}
 
 
+@jax.jit
 def _states(esn_net: esn.ESN, inputs: np.ndarray, x0: jax.Array) -> jax.Array:
     """Reservoir states ``[N, T, n_res]`` of a batch of sequences from initial states x0."""
     return jax.vmap(lambda u, x: esn.run(esn_net, u, x))(jnp.asarray(inputs), x0)

@@ -9,6 +9,7 @@ A linear reservoir, ``x_{t+1} = W_in u_t + W x_t``, with ``W_in ~ U[-1, 1]`` and
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -69,6 +70,7 @@ class ESN:
     w_out: jax.Array  # [n_res, n_out]
 
 
+@functools.partial(jax.jit, static_argnames='config')
 def init(key: jax.Array, config: ESNConfig = ESNConfig()) -> ESN:
     """Draw ``W_in ~ U[-1, 1]`` and a reservoir with exactly ``round(connectivity * n_res^2)``
     non-zero ``U[-1, 1]`` entries, scaled to ``spectral_radius``.
@@ -138,11 +140,13 @@ def fit_readout(states: jax.Array, targets: jax.Array, ridge: float = 0.0) -> ja
     return jnp.linalg.solve(gram, states.T @ targets)
 
 
+@jax.jit
 def apply(esn: ESN, states: jax.Array) -> jax.Array:
     """The 9 linear outputs for states ``[..., n_res]``."""
     return states @ esn.w_out
 
 
+@functools.partial(jax.jit, static_argnames='n_actions')
 def decode(outputs: jax.Array, n_actions: int = N_ACTIONS) -> tuple[jax.Array, jax.Array]:
     """(action index, target-word index): the top of the first ``n_actions`` units (the
     action words) and the top of the 6 word units after them."""
@@ -150,6 +154,7 @@ def decode(outputs: jax.Array, n_actions: int = N_ACTIONS) -> tuple[jax.Array, j
             jnp.argmax(outputs[..., n_actions:], axis=-1))
 
 
+@functools.partial(jax.jit, static_argnames='n_actions')
 def targets(action: jax.Array, word: jax.Array, n_actions: int = N_ACTIONS) -> jax.Array:
     """One-hot sentence targets ``[..., n_actions + 6]``: the action word and the target word."""
     return jnp.concatenate([jax.nn.one_hot(action, n_actions), jax.nn.one_hot(word, N_WORDS)],

@@ -7,6 +7,7 @@ paper's Fig 12).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -50,12 +51,14 @@ def torus_distance(a: jax.Array, b: jax.Array, rows: int, cols: int) -> jax.Arra
     return jnp.sqrt(jnp.sum(d * d, axis=-1))
 
 
+@jax.jit
 def bmu(weights: jax.Array, x: jax.Array) -> jax.Array:
     """Best-matching unit of each sample: ``[N]`` indices into the cells."""
     d = (jnp.sum(x * x, 1)[:, None] - 2 * x @ weights.T + jnp.sum(weights * weights, 1)[None])
     return jnp.argmin(d, axis=1)
 
 
+@functools.partial(jax.jit, static_argnames='config')
 def train(key: jax.Array, data: jax.Array, config: SOMConfig = SOMConfig()) -> jax.Array:
     """Batch SOM: each epoch, every cell moves to the neighbourhood-weighted mean of the data.
 

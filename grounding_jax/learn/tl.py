@@ -17,6 +17,7 @@ which runs through it) groups by hidden size;
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import jax
@@ -164,6 +165,7 @@ class TLParams:
     b2: jax.Array
 
 
+@functools.partial(jax.jit, static_argnames='config')
 def masks(hp: TLHyper, config: TLConfig) -> tuple[jax.Array, jax.Array]:
     """(input mask [n_inputs], hidden mask [max_hidden]) for the traced sizes."""
     rep = jnp.repeat(jnp.arange(config.max_replication) < hp.replication, N_SYMBOLS)
@@ -209,6 +211,7 @@ def init(key: jax.Array, hp: TLHyper, config: TLConfig) -> TLParams:
     return TLParams(w1=w1, b1=jnp.zeros(config.max_hidden), w2=w2, b2=jnp.zeros(N_OUT))
 
 
+@jax.jit
 def apply(params: TLParams, x: jax.Array, hid_mask: jax.Array | None = None
           ) -> tuple[jax.Array, jax.Array]:
     """Forward pass.
@@ -227,6 +230,7 @@ def apply(params: TLParams, x: jax.Array, hid_mask: jax.Array | None = None
     return h, jax.nn.sigmoid(h @ params.w2 + params.b2)
 
 
+@functools.partial(jax.jit, static_argnames='config')
 def build_inputs(bitmaps: jax.Array, symbols: jax.Array, hp: TLHyper, config: TLConfig
                  ) -> jax.Array:
     """Padded inputs ``[N, n_inputs]``: bitmap x ``image_scale``, then the 15 symbols (target
@@ -236,6 +240,7 @@ def build_inputs(bitmaps: jax.Array, symbols: jax.Array, hp: TLHyper, config: TL
     return jnp.concatenate([bitmaps * hp.image_scale, sym], axis=1) * in_mask
 
 
+@functools.partial(jax.jit, static_argnames='n_all')
 def split_indices(key: jax.Array, n_all: int = tl_data.N_CONFIGS
                   ) -> tuple[jax.Array, jax.Array]:
     """(train, test) indices of the configurations that `make_train` uses for ``key``:

@@ -44,6 +44,7 @@ import numpy as np
 import optax
 from flax import struct
 
+from grounding_jax.core import trees
 from grounding_jax.core.checks import (
     POSITIVE,
     UNIT_OPEN_LEFT,
@@ -230,6 +231,7 @@ class XYParams:
     b2: jax.Array
 
 
+@functools.partial(jax.jit, static_argnames='replication')
 def inputs(bitmaps: jax.Array, symbols: jax.Array, replication: int,
            symbol_scale: Any = 1.0) -> jax.Array:
     """Network inputs ``[..., 1200 + 15 n]``: bitmap, then the symbolic units n times."""
@@ -250,6 +252,7 @@ def _hidden_of(params: XYParams, x: jax.Array) -> jax.Array:
     return jax.nn.sigmoid(x @ params.w1 + params.b1)
 
 
+@jax.jit
 def apply(params: XYParams, x: jax.Array) -> jax.Array:
     """Normalised coordinates ``[..., 2]`` (see `denormalise`) of inputs ``x``."""
     return _hidden_of(params, x) @ params.w2 + params.b2
@@ -379,7 +382,7 @@ def run(key: jax.Array, out: pathlib.Path, seeds: int = 3, config: XYConfig = XY
            title=f"TL with free placement: {seeds} seeds, {err.shape[1]} held-out scenes each")
     ax.legend(fontsize=8)
     write_figure(out, "tl_xy", res, fig)
-    return res, jax.tree.map(lambda x: x[0], params)
+    return res, trees.take(params, 0)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -211,8 +211,8 @@ def reference(key: jax.Array, out: pathlib.Path, tl_result: dict, seeds: int,
         patterns naming a shape / a colour.
     """
     data = tl_data.load()
-    x = jnp.asarray(tl_data.inputs(data, 20))
-    y = jnp.asarray(data.labels)
+    x = np.asarray(tl_data.inputs(data, 20), np.float32)  # sliced on the host, per split
+    y = np.asarray(data.labels)
     is_shape = data.word < len(scene.SHAPES)
     keys = jax.random.split(key, seeds)
     fit = jax.jit(_adam_classifier, static_argnums=4)

@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core import guard
+from grounding_jax.core import guard, trees
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.learn import al, cacla, esn, learners, tl, tl_xy
 from grounding_jax.robot import observer
@@ -210,7 +210,7 @@ class Robot:
         Raises:
             ValueError: no agents saved, or ``i`` out of range.
         """
-        agent = _take(self.agents, _agent_index(i, self.n_agents, ""))
+        agent = trees.take(self.agents, _agent_index(i, self.n_agents, ""))
         robot = dataclasses.replace(self, al=TrainedAL(agent, self.al.config))
         robot._performers.update(self._performers)
         return robot
@@ -224,7 +224,7 @@ class Robot:
             ValueError: no free-family agents saved, or ``i`` out of range.
         """
         n = 0 if self.free is None else self.free.n_agents
-        agent = _take(self.free.agents, _agent_index(i, n, "free-family "))
+        agent = trees.take(self.free.agents, _agent_index(i, n, "free-family "))
         free = dataclasses.replace(self.free, al=TrainedAL(agent, self.free.al.config))
         robot = dataclasses.replace(self, free=free)
         robot._performers.update(self._performers)
@@ -416,7 +416,7 @@ class Robot:
         if params is not None:
             params.validate()
         batched = np.ndim(states.obs) == 3
-        many = states if batched else jax.tree.map(lambda x: x[None], states)
+        many = states if batched else trees.add_axis(states)
         if free:
             from grounding_jax.sim import vision
 
@@ -456,12 +456,6 @@ class Robot:
         """
         out = self.resonance(trajectory, params)
         return [r["named"] for r in out] if isinstance(out, list) else out["named"]
-
-
-@jax.jit
-def _take(agents: Any, i: jax.Array) -> Any:
-    # one program per agent structure (indexing leaf by leaf builds two per leaf shape)
-    return jax.tree.map(lambda x: x[i], agents)
 
 
 def _count(agents: Any) -> int:

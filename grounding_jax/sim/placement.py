@@ -99,6 +99,7 @@ def check(placement: Any, field: str = "placement", reach: tuple[int, ...] = (0,
     return arr.astype(np.float32)
 
 
+@jax.jit
 def sample(key: jax.Array) -> jax.Array:
     """A random placement ``[3, 3]``: centres uniform over the region given the spacing
     (rejection among `CANDIDATES` uniform triples), ranked left to right, yaw uniform
