@@ -168,6 +168,7 @@ def env_check(key, env_config) -> list[dict]:
     import numpy as np
 
     import grounding_jax as gj
+    from grounding_jax.core.xla import physics_jit
     from grounding_jax.sim import rollout, scene, scripted
 
     env = gj.Env(env_config)
@@ -178,7 +179,7 @@ def env_check(key, env_config) -> list[dict]:
 
         return rollout.run_episode(env, k, task, policy)
 
-    run = jax.jit(episode)
+    run = physics_jit(episode, env)
     rows = []
     keys = jax.random.split(key, 6)
     for p, name in enumerate(scene.POSITIONS):

@@ -26,6 +26,7 @@ TABLES = {
     "al_throughput": ("results/benchmarks/al_throughput.json", "al_throughput"),
     "tl_throughput": ("results/benchmarks/tl_throughput.json", "tl_throughput"),
     "search": ("results/benchmarks/search.json", "search"),
+    "compile_options": ("results/benchmarks/compile_options.json", "compile_options"),
 }
 BLOCK = re.compile(r"(<!-- table: (\w+) -->\n).*?(<!-- end table -->)", re.S)
 

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from grounding_jax.core import trees
+from grounding_jax.core import trees, xla
 from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.learn import cacla, learners, on_env
 from grounding_jax.sim import rollout, sampler, tasks
@@ -411,7 +411,7 @@ def _batched_pieces(config: ALConfig, hp_axes: tuple, hp_treedef, episodes: int,
         return run(agent, jax.lax.dynamic_slice_in_dim(keys, done, episodes), plan, hp)
 
     axes = jax.tree.unflatten(hp_treedef, hp_axes)
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, axes)))
+    return xla.physics_jit(jax.vmap(one, in_axes=(0, 0, 0, axes)), config.env.backend)
 
 
 def _loop_maker(loop: str):
@@ -463,7 +463,8 @@ def _batched_episodes(config: ALConfig, hp_axes: tuple, hp_treedef, loop: str = 
     reuses the compiled code instead of compiling it again (host-callback code is not in
     JAX's persistent cache)."""
     axes = jax.tree.unflatten(hp_treedef, hp_axes)
-    return jax.jit(jax.vmap(_loop_maker(loop)(config), in_axes=(0, 0, None, axes)))
+    return xla.physics_jit(jax.vmap(_loop_maker(loop)(config), in_axes=(0, 0, None, axes)),
+                           config.env.backend)
 
 
 @functools.lru_cache(maxsize=16)

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from grounding_jax.core import xla
 from grounding_jax.core.io import atomic_write_text, pyplot, write_figure
 from grounding_jax.learn import al, cacla, esn, som, tl
 from grounding_jax.sim import scene, tl_data
@@ -74,8 +75,8 @@ def _sequences(config: EnvConfig, steps: int):
     """The jitted batch of `actor_sequences` for one env config and episode length
     (the agent and params are arguments, not constants: one compile serves every call)."""
     evaluate = al.make_eval(config, steps)
-    return jax.jit(jax.vmap(lambda a, k, t, p: evaluate(a, k, t, p)[2],
-                            in_axes=(None, 0, 0, None)))
+    return xla.physics_jit(jax.vmap(lambda a, k, t, p: evaluate(a, k, t, p)[2],
+                                    in_axes=(None, 0, 0, None)), config)
 
 
 def dataset(agent: cacla.Agent, tl_h: np.ndarray, key: jax.Array, steps: int = 100,

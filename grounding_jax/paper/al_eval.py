@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core import trees
+from grounding_jax.core import trees, xla
 from grounding_jax.learn import al, learners, tl_xy
 from grounding_jax.sim import rollout, scene, tasks
 from grounding_jax.sim.env import (
@@ -118,6 +118,38 @@ def episode_success(traj, task: Task, since: int = 0, task_set: tasks.TaskSet = 
     return {"success": ok.astype(jnp.float32), **out}
 
 
+_PROGRAMS: dict[tuple, object] = {}
+
+
+def _success_program(env: Env, starts: int):
+    """The jitted ``run(agents, key, params, batch)`` of `make_success`, one per (env type,
+    static env config, starts): every success function of the same env shares its compiled
+    programs (an evaluation of the same shapes is traced and compiled once per process)."""
+    cache_key = (type(env), env.config, starts)
+    if cache_key in _PROGRAMS:
+        return _PROGRAMS[cache_key]
+    evaluate = al.make_eval(env)
+
+    def one(agent, key, task, params):
+        _, traj, _ = evaluate(agent, key, task, params)
+        return episode_success(traj, task, task_set=env.tasks)
+
+    over_tasks = jax.vmap(one, in_axes=(None, 0, 0, None))
+    over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
+
+    def run(agents, key: jax.Array, params: EnvParams, batch: Task):
+        # a params leaf with a leading axis is per agent (a sweep's traced env fields)
+        axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, params)
+        over_agents = jax.vmap(over_starts, in_axes=(0, None, None, axes))
+        keys = jax.random.split(key, (starts, batch.action.shape[0]))
+        out = over_agents(agents, keys, batch, params)
+        out["action"], out["position"] = batch.action, batch.position
+        return out
+
+    _PROGRAMS[cache_key] = xla.physics_jit(run, env)
+    return _PROGRAMS[cache_key]
+
+
 def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = ALL_LAYOUTS,
                  starts: int = 1, actions: tuple[int, ...] = (0, 1, 2),
                  steps: int = EVAL_STEPS, batch: Task | None = None):
@@ -134,26 +166,9 @@ def make_success(env: Env | EnvConfig = DEFAULT_ENV, layouts: tuple[int, ...] = 
         ``batch`` argument runs other tasks of the same shapes instead (no new compile).
     """
     env = as_env(env, steps)
-    evaluate = al.make_eval(env)
     default = all_tasks(layouts, actions) if batch is None else batch
     n_tasks = int(default.action.shape[0])
-
-    def one(agent, key, task, params):
-        _, traj, _ = evaluate(agent, key, task, params)
-        return episode_success(traj, task, task_set=env.tasks)
-
-    over_tasks = jax.vmap(one, in_axes=(None, 0, 0, None))
-    over_starts = jax.vmap(over_tasks, in_axes=(None, 0, None, None))
-
-    @jax.jit
-    def run(agents, key: jax.Array, params: EnvParams, batch: Task):
-        # a params leaf with a leading axis is per agent (a sweep's traced env fields)
-        axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, params)
-        over_agents = jax.vmap(over_starts, in_axes=(0, None, None, axes))
-        keys = jax.random.split(key, (starts, n_tasks))
-        out = over_agents(agents, keys, batch, params)
-        out["action"], out["position"] = batch.action, batch.position
-        return out
+    run = _success_program(env, starts)
 
     def success(agents, key: jax.Array, params: EnvParams = DEFAULT_PARAMS,
                 batch: Task | None = None):
@@ -302,10 +317,9 @@ def make_switch_success(env: Env | EnvConfig = DEFAULT_ENV, steps: int = EVAL_ST
 
     over_pairs = jax.vmap(one, in_axes=(None, None, 0, 0))
 
-    @jax.jit
     def success(agents, key: jax.Array):
         out = jax.vmap(over_pairs, in_axes=(0, None, None, None))(agents, key, first, second)
         out["action"], out["position"] = second.action, second.position
         return out
 
-    return success
+    return xla.physics_jit(success, env)

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from grounding_jax.core import xla
 from grounding_jax.core.io import atomic_write_text, pyplot, write_figure
 from grounding_jax.learn import al, cacla
 from grounding_jax.paper.al_eval import (
@@ -80,8 +81,8 @@ def fig10(agents, key: jax.Array, env: Env | EnvConfig, out) -> dict:
     plt = pyplot()
     evaluate = al.make_eval(env)
     batch = all_tasks((0,))
-    run = jax.jit(jax.vmap(jax.vmap(lambda ag, t: evaluate(ag, key, t)[1].reward,
-                                    in_axes=(None, 0)), in_axes=(0, None)))
+    run = xla.physics_jit(jax.vmap(jax.vmap(lambda ag, t: evaluate(ag, key, t)[1].reward,
+                                            in_axes=(None, 0)), in_axes=(0, None)), env)
     r = np.asarray(run(agents, batch))  # [agents, 9, steps]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.2), sharey=False)
     for i, ax in enumerate(axes):
@@ -107,8 +108,8 @@ def fig11(agent, key: jax.Array, env: Env | EnvConfig, out,
     evaluate = al.make_eval(env)
     params = EnvParams(start_noise=start_noise)
     task = make_task("point", "left")
-    first, traj, _ = jax.jit(jax.vmap(lambda k: evaluate(agent, k, task, params)))(
-        jax.random.split(key, starts))
+    first, traj, _ = xla.physics_jit(jax.vmap(lambda k: evaluate(agent, k, task, params)),
+                                     env)(jax.random.split(key, starts))
     j0 = np.asarray(first.obs[:, :4])[:, None]
     joints = np.concatenate([j0, np.asarray(traj.obs[..., :4])], axis=1)  # [starts, T+1, 4]
     reward = np.concatenate([np.asarray(first.reward)[:, None], np.asarray(traj.reward)], 1)
@@ -147,7 +148,7 @@ def fig13(agent, key: jax.Array, env: Env | EnvConfig, out,
           steps: int = 100, switch_at: int = 20) -> dict:
     """Fig 13: 100-step runs where the action or the target changes at step 20."""
     plt = pyplot()
-    run = jax.jit(make_switch_eval(env, steps, switch_at))
+    run = xla.physics_jit(make_switch_eval(env, steps, switch_at), env)
     fig, axes = plt.subplots(1, len(SWITCHES), figsize=(4 * len(SWITCHES), 3.2))
     rows = []
     for ax, (a1, p1, a2, p2) in zip(axes, SWITCHES, strict=True):
@@ -256,7 +257,7 @@ def exploration_knocks(key: jax.Array, env: Env | EnvConfig = DEFAULT_ENV,
         last = jax.tree.map(lambda x: x[-1], traj)
         return last.wrong_since >= 0, last.metrics["point_l1"]
 
-    run = jax.jit(jax.vmap(episode, in_axes=(0, 0, None)))
+    run = xla.physics_jit(jax.vmap(episode, in_axes=(0, 0, None)), env)
     keys = jax.random.split(key, 3 * episodes)
     positions = jnp.repeat(jnp.arange(3, dtype=jnp.int32), episodes)
     out = {}
@@ -357,7 +358,7 @@ def run(key: jax.Array, out, seeds: int, phase1: int, phase2: int, no_tricks_epi
     if no_tricks_episodes:
         nt = al.ALConfig(env=env_config, learner=cfg.learner, phase1_episodes=0,
                          phase2_episodes=no_tricks_episodes)
-        _, m_nt = jax.jit(jax.vmap(al.make_train(nt), in_axes=(0, None)))(
+        _, m_nt = xla.physics_jit(jax.vmap(al.make_train(nt), in_axes=(0, None)), env)(
             jax.random.split(k_nt, seeds), hp)
         res["fig14"] = fig14(m_nt, out)
         res["no_tricks_tail"] = _tail(m_nt)
@@ -381,14 +382,13 @@ def point_tail(agents, env_params: EnvParams = DEFAULT_PARAMS,
     batch = all_tasks(layouts, actions=(0,))
     axes = jax.tree.map(lambda x: 0 if jnp.ndim(x) else None, env_params)
 
-    @jax.jit
     def run(agents, params):
         def one(agent, task, p):
             return evaluate(agent, jax.random.key(0), task, p)[1].metrics["point_l1"][-last:]
         return jax.vmap(jax.vmap(one, in_axes=(None, 0, None)), in_axes=(0, None, axes))(
             agents, batch, params)
 
-    return np.asarray(run(agents, env_params))
+    return np.asarray(xla.physics_jit(run, env)(agents, env_params))
 
 
 def point_tail_figure(tails: dict[str, np.ndarray], out, name: str = "point_tail") -> dict:

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from grounding_jax.core import xla
 from grounding_jax.core.io import pyplot, write_figure
 from grounding_jax.learn import al, cacla
 from grounding_jax.paper import al_eval
@@ -198,7 +199,6 @@ def make_moving(env: Env, steps: int = MOVING_STEPS):
     L1 [scenes, steps], wrong moved [scenes])``: greedy episodes of batched moving tasks."""
     evaluate = al.make_eval(env, steps)
 
-    @jax.jit
     def run(agent, keys, batch: Task, env_params: EnvParams):
         def one(k, task):
             _, traj, _ = evaluate(agent, k, task, env_params)
@@ -206,7 +206,7 @@ def make_moving(env: Env, steps: int = MOVING_STEPS):
                     traj.wrong_since[-1] >= 0)
         return jax.vmap(one)(keys, batch)
 
-    return run
+    return xla.physics_jit(run, env)
 
 
 def moving(agent, key: jax.Array, out: pathlib.Path, scenes: int = 16,

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from grounding_jax.core import xla
 from grounding_jax.core.io import pyplot, write_figure
 from grounding_jax.learn import al
 from grounding_jax.paper import al_eval
@@ -65,7 +66,7 @@ def _runner(config: EnvConfig, steps: int):
         _, traj, _ = evaluate(agent, key, task, params)
         return traj, al_eval.episode_success(traj, task, task_set=env.tasks)["success"]
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, None)))
+    return xla.physics_jit(jax.vmap(one, in_axes=(None, 0, 0, None)), config)
 
 
 def agent_episodes(agent, config: EnvConfig, key: jax.Array, tasks: Task, params: EnvParams,
@@ -107,7 +108,7 @@ def _script_runner(config: EnvConfig, steps: int):
             steps)
         return traj, al_eval.episode_success(traj, task, task_set=env.tasks)["success"]
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+    return xla.physics_jit(jax.vmap(one, in_axes=(0, 0, None)), config)
 
 
 def scripted_episodes(config: EnvConfig, key: jax.Array, tasks: Task, params: EnvParams,

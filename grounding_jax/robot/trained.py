@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from grounding_jax.core import guard, trees
+from grounding_jax.core import guard, trees, xla
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.learn import al, cacla, esn, learners, tl, tl_xy
 from grounding_jax.robot import observer
@@ -240,7 +240,7 @@ class Robot:
                 tl_h = TrainedTL(tl_params, self.tl.hyper).hidden_layer(bitmap, symbols)
                 return traj, TrainedAN(net).outputs(hidden, tl_h)[-1]
 
-            self._performers[steps] = jax.jit(run)
+            self._performers[steps] = xla.physics_jit(run, self.env_config.backend)
         return self._performers[steps]
 
     def perform(self, action: str, word: str, layout: int = 0, steps: int = 100,
@@ -310,7 +310,8 @@ class Robot:
         xy = self.free.localize(image, int(task.layout), word)
         task = task.replace(target_xy=jnp.asarray(xy, jnp.float32))
         if ("free", steps) not in self._performers:
-            self._performers[("free", steps)] = jax.jit(al.make_eval(cfg, steps))
+            self._performers[("free", steps)] = xla.physics_jit(al.make_eval(cfg, steps),
+                                                                cfg.backend)
         _, traj, hidden = self._performers[("free", steps)](self.free.al.agent, k_reset, task,
                                                             params)
         named = None
@@ -383,7 +384,7 @@ class Robot:
                 return err, a, p, w, TrainedAN(net).outputs(hidden, tl_h)[-1]
 
             fn = jax.vmap(run, in_axes=(None, None, None, 0, None))
-        self._performers[("watch", free)] = jax.jit(fn)
+        self._performers[("watch", free)] = xla.physics_jit(fn, self.env_config.backend)
         return self._performers[("watch", free)]
 
     def resonance(self, trajectory: Any, params: EnvParams | None = None) -> dict | list[dict]:
