@@ -27,6 +27,7 @@ TABLES = {
     "tl_throughput": ("results/benchmarks/tl_throughput.json", "tl_throughput"),
     "search": ("results/benchmarks/search.json", "search"),
     "compile_options": ("results/benchmarks/compile_options.json", "compile_options"),
+    "physics_options": ("results/benchmarks/physics_options.json", "physics_options"),
 }
 BLOCK = re.compile(r"(<!-- table: (\w+) -->\n).*?(<!-- end table -->)", re.S)
 
