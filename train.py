@@ -7,7 +7,8 @@ pixel-noise test -- the action learner's hyperparameter sweeps (Figs 8A, 8B, 9A,
 action namer (AN: ESN naming, Fig 15) with the SOM (Fig 12); beyond the paper, the free
 family (objects anywhere) and the observer (the saved robot names what other agents and
 scripted movements do). The trained TL, AL agents and AN are saved to ``<out>/modules`` (load
-them with ``grounding_jax.load``).
+them with ``grounding_jax.load``). The TL's part runs on its own thread beside the others
+(``grounding_jax.core.beside``); every result is the same as run in sequence.
 
     python train.py                      # quick profile (small grids, few seeds)
     python train.py --profile paper      # the paper's settings (600 epochs, full grids)
@@ -201,21 +202,27 @@ def env_check(key, env_config) -> list[dict]:
     return rows
 
 
-def tl_experiments(key, out: pathlib.Path, st: dict) -> dict:
+def tl_experiments(key, out: pathlib.Path, st: dict, stop=None) -> dict:
     """The TL results: accuracy, the reference learners, Fig 6, Fig 7, noise (fixed and
-    fresh flips)."""
+    fresh flips). ``stop``: a `threading.Event` checked between them (`core.beside`)."""
     import jax
 
+    from grounding_jax.core.beside import check
     from grounding_jax.paper import tl_experiments as E
 
     k_acc, k6, k7, k_fixed, k_fresh = jax.random.split(key, 5)
     ep, seeds = st["tl_epochs"], st["tl_seeds"]
     res = {"accuracy": E.accuracy(k_acc, out, seeds, ep)}
     print(f"tl    accuracy H=50 n=20: test {res['accuracy']['test_acc_mean']:.3f}", flush=True)
+    check(stop)
     res["reference"] = E.reference(k_acc, out, res["accuracy"], seeds)  # the same splits
+    check(stop)
     res["fig6"] = E.sweep(k6, out, "hidden", st["tl_hidden"], seeds, ep, name="fig6")
+    check(stop)
     res["fig7"] = E.sweep(k7, out, "replication", st["tl_replication"], seeds, ep, name="fig7")
+    check(stop)
     res["noise"] = E.accuracy(k_fixed, out, seeds, ep, noise=0.1, name="noise")
+    check(stop)
     res["noise_fresh"] = E.accuracy(k_fresh, out, seeds, ep, noise=0.1, name="noise_fresh",
                                     noise_mode="fresh")
     print("tl    figs 6, 7 and noise done", flush=True)
@@ -540,8 +547,8 @@ def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> 
     XLA programs it built (``compiles``, counted with ``jax.monitoring``) and its physics floor
     (``physics_floor_s``: the RL steps the C backend simulated at the physics-alone ceiling,
     measured here on a sample of those very steps, plus the TL's compute -- its part's wall
-    time less its compiling; None on the MJX backend). ``before``: the program tally at the
-    command's start."""
+    time less its compiling, on its own thread; None on the MJX backend). ``before``: the
+    program tally at the command's start."""
     from grounding_jax.core import compiles
     from grounding_jax.sim import physics
 
@@ -556,6 +563,7 @@ def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> 
         if rate:
             floor = steps / rate + tl_compute
         out["physics"] = {"rl_steps": steps, "ceiling_rl_steps_per_s": rate,
+                          "physics_s": steps / rate if rate else None,
                           "tl_compute_s": tl_compute, "step_handler": physics.step_handler()}
     out["physics_floor_s"] = floor
     wall["total"] = time.perf_counter() - started
@@ -565,12 +573,9 @@ def speed(wall: dict[str, float], started: float, before, tl_compile: float) -> 
 def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -> int:
     import jax
 
-    import grounding_jax as gj
-    from grounding_jax.core.io import atomic_write_text, library_versions
-    from grounding_jax.learn.cacla import CaclaConfig
+    from grounding_jax.core.io import atomic_write_text
     from grounding_jax.paper.report import report
     from grounding_jax.paper.strips import existing_strips
-    from grounding_jax.sim.env import EnvConfig
 
     if args.report_only:
         try:
@@ -591,17 +596,37 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
         jax.random.key(args.seed), 9)
     if args.only:
         return rerun(out, args, k_xy, k_free, k_strip, k_obs)
-    from grounding_jax.core import compiles
+    from grounding_jax.core.beside import Beside
 
+    # the TL's part only runs networks: on its own thread it fills the cores the physics
+    # parts leave idle while they trace and compile (docs/reproduction.md)
+    with Beside("tl", tl_experiments, k_tl, out / "tl", args.settings) as tl_job:
+        result = _parts(args, out, (k_env, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs))
+        result["tl"] = tl_job.result()
+    parts = result["wall_s"]
+    wall = result["wall_s"] = {"env": parts.pop("env"), "tl": tl_job.wall_s, **parts}
+    result["beside"] = ["tl"]  # parts run on their own thread, overlapping the others
+    result.update(speed(wall, started, before, tl_job.compile_s))
+    write_results(out, result)
+    print(f"wrote {out / 'REPORT.md'}, {out / 'metrics.json'}, metrics.csv, modules/ "
+          f"({wall['total']:.1f} s, {result['compiles']} XLA programs)")
+    return 0
+
+
+def _parts(args: argparse.Namespace, out: pathlib.Path, keys: tuple) -> dict:
+    """The parts after the TL's, in order (each its own key): metrics.json's fields but
+    ``tl`` and the speed."""
+    import grounding_jax as gj
+    from grounding_jax.core.io import library_versions
+    from grounding_jax.learn.cacla import CaclaConfig
+    from grounding_jax.sim.env import EnvConfig
+
+    k_env, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs = keys
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()
     env_rows = env_check(k_env, env_config)
     wall["env"] = time.perf_counter() - t
-    t, tl_before = time.perf_counter(), compiles.tally()
-    tl = tl_experiments(k_tl, out / "tl", args.settings)
-    wall["tl"] = time.perf_counter() - t
-    tl_compile = sum((compiles.tally() - tl_before).stages.values())
     t = time.perf_counter()
     sweeps = al_sweeps(k_sw, out / "sweeps", args.sweeps, args.resume)
     wall["al_sweeps"] = time.perf_counter() - t
@@ -622,16 +647,10 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
     t = time.perf_counter()
     watched = observer(k_obs, out / "observer", args.settings)
     wall["observer"] = time.perf_counter() - t
-    result = {"profile": args.profile, "backend": args.backend, "seed": args.seed,
-              "settings": args.settings, "scripted_episodes": env_rows, "tl": tl,
-              "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "observer": watched,
-              "wall_s": wall,
-              "version": gj.__version__, "libraries": library_versions()}
-    result.update(speed(wall, started, before, tl_compile))
-    write_results(out, result)
-    print(f"wrote {out / 'REPORT.md'}, {out / 'metrics.json'}, metrics.csv, modules/ "
-          f"({wall['total']:.1f} s, {result['compiles']} XLA programs)")
-    return 0
+    return {"profile": args.profile, "backend": args.backend, "seed": args.seed,
+            "settings": args.settings, "scripted_episodes": env_rows, "tl": None,
+            "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "observer": watched,
+            "wall_s": wall, "version": gj.__version__, "libraries": library_versions()}
 
 
 if __name__ == "__main__":

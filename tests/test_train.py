@@ -47,7 +47,10 @@ def test_quick_profile_writes_report_metrics_and_every_figure(quick):
     assert f"mujoco {data['libraries']['mujoco']}" in report
     # the speed figures other checks read: the whole command, its programs, its floor
     wall = data["wall_s"]
-    assert wall["total"] >= sum(v for k, v in wall.items() if k != "total") > 0
+    own = data["beside"]  # run on their own thread, overlapping the parts in sequence
+    assert own == ["tl"] and 0 < wall["tl"] < wall["total"]
+    assert wall["total"] >= sum(v for k, v in wall.items() if k not in ("total", *own)) > 0
+    assert "tl ran on its own thread beside the other parts" in report
     assert 50 < data["compiles"] == data["compiles_detail"]["programs"] < 2000
     phys = data["physics"]
     assert phys["rl_steps"] > 100_000 and phys["ceiling_rl_steps_per_s"] > 100

@@ -20,6 +20,8 @@ _lock = threading.Lock()
 _names: collections.Counter[str] = collections.Counter()
 _seconds: collections.Counter[str] = collections.Counter()
 _stage_s: collections.Counter[str] = collections.Counter()
+_thread_s: collections.defaultdict[int, collections.Counter[str]] = collections.defaultdict(
+    collections.Counter)  # JAX reports a compile on the thread that asked for it
 _hits = 0
 _installed = False
 
@@ -65,6 +67,7 @@ def _on_duration(event: str, duration: float, **kwargs) -> None:
     name = str(kwargs.get("fun_name", "?"))
     with _lock:
         _stage_s[stage] += duration
+        _thread_s[threading.get_ident()][stage] += duration
         _seconds[name] += duration  # tracing, lowering and building, by program name
         if event == _BUILD:
             _names[name] += 1
@@ -94,3 +97,10 @@ def tally() -> Tally:
     """The programs built since `install` was first called."""
     with _lock:
         return Tally(sum(_names.values()), _hits, dict(_names), dict(_stage_s), dict(_seconds))
+
+
+def thread_seconds(ident: int | None = None) -> dict[str, float]:
+    """Seconds spent tracing, lowering and building on one thread (default: this one) since
+    `install`: a part run on its own thread is told its compiling apart from the others'."""
+    with _lock:
+        return dict(_thread_s.get(threading.get_ident() if ident is None else ident, {}))

@@ -17,6 +17,7 @@ import contextlib
 import os
 import pathlib
 import signal
+import threading
 from collections.abc import Iterator
 
 LOCK_FILE = ".lock"
@@ -104,7 +105,8 @@ def _handler(signum, frame) -> None:
 @contextlib.contextmanager
 def deferred() -> Iterator[None]:
     """SIGINT/SIGTERM received inside the block take effect when it ends (only while
-    `handle_interrupts` is on; otherwise the block changes nothing)."""
+    `handle_interrupts` is on; otherwise the block changes nothing), on the main thread
+    whichever thread's block held them back."""
     _deferring[0] += 1
     try:
         yield
@@ -113,7 +115,10 @@ def deferred() -> Iterator[None]:
         if not _deferring[0] and _pending:
             signum = _pending[0]
             _pending.clear()
-            _raise_for(signum)
+            if threading.current_thread() is threading.main_thread():
+                _raise_for(signum)
+            else:  # a part on its own thread (core.beside) sealed a file: the run stops
+                signal.pthread_kill(threading.main_thread().ident, signum)
 
 
 @contextlib.contextmanager

@@ -166,14 +166,40 @@ class Staged:
         self.commit()
 
 
-def pyplot():
-    """matplotlib.pyplot on the headless Agg backend (imported on first use)."""
+class _Figures:
+    """The part of `matplotlib.pyplot` this package draws with, minus pyplot's global list of
+    open figures: each figure is a free-standing `matplotlib.figure.Figure`, so figures can be
+    drawn on several threads at once (train.py runs the TL's part beside the others)."""
+
+    def __init__(self, plt) -> None:
+        self._plt = plt
+
+    @staticmethod
+    def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
+        """`pyplot.subplots`' signature: (figure, axes)."""
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=figsize)
+        return fig, fig.subplots(nrows, ncols, **kwargs)
+
+    @staticmethod
+    def close(fig) -> None:
+        """Drop the figure's artists (nothing global holds it)."""
+        fig.clear()
+
+    def __getattr__(self, name: str):  # colour maps and norms: pyplot's stateless helpers
+        return getattr(self._plt, name)
+
+
+def pyplot() -> _Figures:
+    """A thread-safe slice of matplotlib.pyplot on the headless Agg backend (imported on
+    first use): `subplots`, `close`, and pyplot's colour maps and norms."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt
+    return _Figures(plt)
 
 
 def write_figure(out: pathlib.Path, name: str, payload: dict, fig,

@@ -526,8 +526,11 @@ def _speed_report(result: dict, wall: dict[str, float]) -> list[str]:
     were recorded show the wall times only)."""
     parts = ", ".join(f"{k} {v:.1f} s" for k, v in wall.items() if k != "total")
     lines = ["", "## Speed", ""]
+    own = result.get("beside") or []
     if "total" in wall:
-        lines.append(f"Whole command: {wall['total']:.1f} s (parts: {parts}).")
+        lines.append(f"Whole command: {wall['total']:.1f} s (parts: {parts})."
+                     + (f" {', '.join(own)} ran on its own thread beside the other parts, so "
+                        "the parts add up to more than the whole." if own else ""))
     else:
         lines.append(f"Wall time: {parts}.")
     if "compiles" in result:
@@ -546,6 +549,11 @@ def _speed_report(result: dict, wall: dict[str, float]) -> list[str]:
                   "batches of 256, the faster of `mujoco.rollout` and the compiled step) + "
                   f"the TL's compute {phys['tl_compute_s']:.1f} s. "
                   f"Whole command / floor: **{wall['total'] / floor:.2f}×**."]
+        if "tl" in own and phys.get("physics_s"):
+            lines[-1] += (" The TL's compute was timed while it shared the cores with the "
+                          "other parts, which makes it longer than alone; the whole command "
+                          "/ the physics term alone: "
+                          f"{wall['total'] / phys['physics_s']:.2f}×.")
     elif "physics_floor_s" in result:
         lines += ["", "Physics floor: not measured (the MJX backend has no rollout-alone "
                   "counter)."]
