@@ -23,7 +23,7 @@ class Cancelled(Exception):  # noqa: N818 (a request, not a fault)
 class Beside:
     """``fn(*args, stop=event)`` run on a daemon thread from construction.
 
-    `fn` should call ``stop.is_set()`` between its steps and raise `Cancelled` when it is.
+    `fn` should call `check` on ``stop`` between its steps (it raises `Cancelled`).
     Use it as a context manager: leaving the block with an error stops the part at its next
     check and waits for it (files it writes stay whole: they are written by rename), except
     on an interrupt, which leaves at once (the command line ends the process).
