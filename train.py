@@ -614,8 +614,8 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
 
 
 def _parts(args: argparse.Namespace, out: pathlib.Path, keys: tuple) -> dict:
-    """The parts after the TL's, in order (each its own key): metrics.json's fields but
-    ``tl`` and the speed."""
+    """Every part but the TL's, in order on this thread (each its own key): metrics.json's
+    fields but ``tl`` and the speed."""
     import grounding_jax as gj
     from grounding_jax.core.io import library_versions
     from grounding_jax.learn.cacla import CaclaConfig
