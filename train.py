@@ -18,6 +18,9 @@ them with ``grounding_jax.load``). The TL's part runs on its own thread beside t
                                          # the continuous TL of the run already in --out
     python train.py --profile paper --only beyond       # that TL trained again too
     python train.py --profile paper --only observer     # the saved robot watches again
+    python train.py --set random_starts.noise=0.3       # a field of a registered stage
+    python train.py --profile paper --only random_starts  # one stage again, on the saved
+                                         # modules (stages: grounding_jax.paper.stage)
 """
 
 from __future__ import annotations
@@ -89,7 +92,7 @@ ZERO_OK = {"al_phase1", "al_phase2", "al_no_tricks", "free_phase1", "free_phase2
 def _settings(profile: str, overrides: list[str]) -> dict:
     """The profile's settings with ``key=value`` overrides (ints, or comma-separated ints)."""
     settings = dict(PROFILES[profile])
-    for item in overrides:
+    for item in (o for o in overrides if "." not in o.partition("=")[0]):
         key, sep, value = item.partition("=")
         if not sep or key not in settings:
             raise ValueError(f"--set {item!r}: unknown key {key!r}; accepted keys: "
@@ -123,20 +126,25 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                          "checkpoints (else they start over)")
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite REPORT.md from the metrics.json already in --out; run nothing")
-    ap.add_argument("--only", choices=tuple(ONLY), default=None,
+    from grounding_jax.paper import stage
+
+    ap.add_argument("--only", choices=(*ONLY, *stage.stages()), default=None,
                     help="re-run one part of a run already in --out with the keys a whole run "
                          "gives it, keeping the rest (free-robot: the free family's actor, its "
                          "eyes, the moving target, the namer and the camera strip, on the saved "
                          "continuous TL; beyond: the continuous TL trained again, then "
-                         "free-robot)")
+                         "free-robot; a stage's name: that stage)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a profile setting (e.g. tl_epochs=50, tl_hidden=5,50)")
+                    help="override a profile setting (e.g. tl_epochs=50, tl_hidden=5,50) "
+                         "or a stage's field (random_starts.noise=0.15,0.3)")
     args = ap.parse_args(argv)
     if args.profile not in PROFILES:
         ap.error(f"--profile: unknown value {args.profile!r}; accepted values: "
                  f"{tuple(PROFILES)}")
     try:
         args.settings = _settings(args.profile, args.set)
+        args.stages = stage.configs(args.profile, [o for o in args.set
+                                                   if "." in o.partition("=")[0]])
     except ValueError as e:
         ap.error(str(e))
     from grounding_jax.sim.physics import BACKENDS
@@ -413,13 +421,15 @@ def robot_strips(out: pathlib.Path) -> None:
     write_strips(gj.load(out / "modules"), out)
 
 
-def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_obs) -> int:
+# one branch per part --only re-runs, each with its checks
+def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_obs,
+          k_stages) -> int:
     """``--only free-robot``: :func:`beyond_robot` and :func:`camera_strip` again with the keys
     a whole run gives them, on the continuous TL saved in ``out/modules``; ``--only beyond``:
     the continuous TL trained again first (:func:`beyond`). The modules are saved again (the
     paper's unchanged, the free family's new); ``--only observer``: :func:`observer` again on
-    the saved modules. metrics.json's part, metrics.csv and REPORT.md are rewritten, the
-    other parts' results kept."""
+    the saved modules; ``--only <stage>``: that registered stage again. metrics.json's part,
+    metrics.csv and REPORT.md are rewritten, the other parts' results kept."""
     import grounding_jax as gj
     from grounding_jax.core.io import library_versions
     from grounding_jax.robot import trained
@@ -441,19 +451,30 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_
               f"{data['seed']}, backend {data['backend']!r}; asked for {args.profile!r}, "
               f"{args.seed}, {args.backend!r}", file=sys.stderr)
         return 2
-    own = ONLY[part]
+    own = ONLY.get(part, ())  # a stage reads only its own config
     changed = sorted(k for k in args.settings
                      if k not in own and data["settings"].get(k) != args.settings[k])
     if changed:
         print(f"--only {part}: settings of the parts it keeps differ from the run in "
               f"{out}: {changed}; only its own may change: {list(own)}", file=sys.stderr)
         return 2
+    others = sorted({o.partition(".")[0] for o in args.set
+                     if "." in o.partition("=")[0]} - {part})
+    if others:
+        print(f"--only {part}: --set changes stages it does not run: {others}",
+              file=sys.stderr)
+        return 2
     robot = gj.load(modules_dir)
     if robot.free is None and part == "free-robot":
         print(f"--only {part}: {modules_dir} holds no continuous TL", file=sys.stderr)
         return 2
     t = time.perf_counter()
-    if part == "observer":
+    if part not in ONLY:
+        from grounding_jax.paper import stage
+
+        data.setdefault("stages", {})[part] = stage.run_all(
+            k_stages, stage_inputs(args, out, data), out, {part: args.stages[part]})[part]
+    elif part == "observer":
         if robot.n_agents < 2:
             print(f"--only {part}: {modules_dir} holds no other AL agents to watch (modules "
                   "saved before the AL agents were saved with them); run the whole profile",
@@ -480,7 +501,8 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_
     data["reruns"] = sorted({*data.get("reruns", []), part})
     write_results(out, data)
     print(f"rewrote the {part} part of {out}: metrics.json, metrics.csv, REPORT.md"
-          f"{'' if part == 'observer' else ', modules/'} ({data['wall_s'][wall]:.1f} s)")
+          f"{'' if part not in ONLY or part == 'observer' else ', modules/'} "
+          f"({data['wall_s'][wall]:.1f} s)")
     return 0
 
 
@@ -592,16 +614,17 @@ def _main(args: argparse.Namespace, out: pathlib.Path, started: float, before) -
         print(f"rewrote {out / 'REPORT.md'} from {out / 'metrics.json'}")
         return 0
     # the one split (split is prefix-stable: a part added at the end leaves the others' keys)
-    k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs = jax.random.split(
-        jax.random.key(args.seed), 9)
+    k_env, k_tl, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs, k_stages = jax.random.split(
+        jax.random.key(args.seed), 10)
     if args.only:
-        return rerun(out, args, k_xy, k_free, k_strip, k_obs)
+        return rerun(out, args, k_xy, k_free, k_strip, k_obs, k_stages)
     from grounding_jax.core.beside import Beside
 
     # the TL's part only runs networks: on its own thread it fills the cores the physics
     # parts leave idle while they trace and compile (docs/reproduction.md)
     with Beside("tl", tl_experiments, k_tl, out / "tl", args.settings) as tl_job:
-        result = _parts(args, out, (k_env, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs))
+        result = _parts(args, out, (k_env, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs,
+                                    k_stages))
         result["tl"] = tl_job.result()
     parts = result["wall_s"]
     wall = result["wall_s"] = {"env": parts.pop("env"), "tl": tl_job.wall_s, **parts}
@@ -619,9 +642,10 @@ def _parts(args: argparse.Namespace, out: pathlib.Path, keys: tuple) -> dict:
     import grounding_jax as gj
     from grounding_jax.core.io import library_versions
     from grounding_jax.learn.cacla import CaclaConfig
+    from grounding_jax.paper import stage
     from grounding_jax.sim.env import EnvConfig
 
-    k_env, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs = keys
+    k_env, k_sw, k_al, k_an, k_xy, k_free, k_strip, k_obs, k_stages = keys
     wall = {}
     t = time.perf_counter()
     env_config, al_config = EnvConfig(backend=args.backend), CaclaConfig()
@@ -647,10 +671,22 @@ def _parts(args: argparse.Namespace, out: pathlib.Path, keys: tuple) -> dict:
     t = time.perf_counter()
     watched = observer(k_obs, out / "observer", args.settings)
     wall["observer"] = time.perf_counter() - t
+    done = {"al": al, "an": an, "beyond": extra, "observer": watched}
+    stages = stage.run_all(k_stages, stage_inputs(args, out, done), out, args.stages)
+    wall.update({name: entry["wall_s"] for name, entry in stages.items()})
     return {"profile": args.profile, "backend": args.backend, "seed": args.seed,
             "settings": args.settings, "scripted_episodes": env_rows, "tl": None,
             "sweeps": sweeps, "al": al, "an": an, "beyond": extra, "observer": watched,
-            "wall_s": wall, "version": gj.__version__, "libraries": library_versions()}
+            "stages": stages, "wall_s": wall, "version": gj.__version__,
+            "libraries": library_versions()}
+
+
+def stage_inputs(args: argparse.Namespace, out: pathlib.Path, results: dict):
+    """What the registered stages get: the saved modules and the results before them."""
+    from grounding_jax.paper.stage import Inputs
+
+    return Inputs(modules=out / "modules", profile=args.profile, backend=args.backend,
+                  seed=args.seed, results=results)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import statistics
 
+from grounding_jax.paper import stage
+
 #: What the paper reports, in one place (the report's "paper" column).
 PAPER = {
     "tl_test_acc": "~95%", "tl_train_acc": "100%", "tl_test_rmse": "0.136",
@@ -645,6 +647,7 @@ def report(result: dict, strips: dict[str, str] | None = None) -> str:
         *_an_report(an),
         *_beyond_report(result.get("beyond")),
         *_observer_report(result.get("observer")),
+        *stage.report_sections(result),
         "", "## Scripted episodes (env check)", "",
         "| action | position | final reward | point L1 | target moved (cm) | others moved (cm) |",
         "|---|---|---|---|---|---|",
