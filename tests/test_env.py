@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -63,6 +65,35 @@ def test_the_task_vocabulary_sets_the_observation_layout_and_the_sizes(env_c):
     assert action.shape == (tasks.ACTION_SIZE,) and cacla.critic_apply(agent.critic,
                                                                           st.obs).shape == ()
     assert esn.ESNConfig().n_out == tasks.N_ACTIONS + len(tasks.TARGET_WORDS)
+
+
+def test_a_memory_holds_the_last_steps_joints_and_actions_newest_first():
+    from grounding_jax.learn import cacla
+    from grounding_jax.sim import tasks
+
+    ts = tasks.get("paper_memory")
+    assert ts.memory == 2 and ts.obs_size == tasks.OBS_SIZE + 2 * 2 * tasks.N_JOINTS
+    env = gj.Env(gj.EnvConfig(task_set="paper_memory"))
+    s0 = env.reset(jax.random.key(0), gj.make_task("touch", "middle", 0, "paper_memory"))
+    joints = lambda s: np.asarray(s.obs[:4])  # noqa: E731
+    mem = lambda s: np.asarray(s.obs[ts.obs_memory]).reshape(4, 4)  # noqa: E731
+    # at reset: the reset joints stand in for the steps before, no actions yet
+    np.testing.assert_array_equal(mem(s0), [joints(s0), joints(s0), np.zeros(4), np.zeros(4)])
+    np.testing.assert_array_equal(s0.obs[:tasks.OBS_SIZE],
+                                  env_mod.Env(env_mod.EnvConfig()).reset(
+                                      jax.random.key(0), gj.make_task("touch", "middle", 0)).obs)
+    a1, a2 = jnp.array([0.1, 0.2, 0.3, 0.4]), jnp.array([-0.1, 0.0, 0.0, 0.5])
+    s1 = env.step(s0, a1)
+    s2 = env.step(s1, a2)
+    np.testing.assert_array_equal(mem(s1), [joints(s0), joints(s0), a1, np.zeros(4)])
+    np.testing.assert_array_equal(mem(s2), [joints(s1), joints(s0), a2, a1])
+    # a goal switch keeps the memory; the learner's input size follows the task set
+    sw = env.set_task(s2, gj.make_task("push", "left", 0, "paper_memory"))
+    np.testing.assert_array_equal(mem(sw), mem(s2))
+    agent = cacla.init(jax.random.key(0), cacla.CaclaConfig(task_set="paper_memory"))
+    assert cacla.actor_apply(agent.actor, s2.obs)[1].shape == (tasks.ACTION_SIZE,)
+    with pytest.raises(ValueError, match="memory"):
+        dataclasses.replace(ts, name="bad", memory=-1)
 
 
 def test_a_fourth_action_is_one_task_set_and_every_size_follows():

@@ -98,9 +98,10 @@ class EnvParams:
         touch_other_penalty: added to the touch reward while touching a non-target object.
         touch_target_penalty: added to the touch reward while touching the target.
         touch_moved_penalty: the free family's touch reward loses this much per metre the
-            target has moved (``tasks.FREE``; the paper family does not use it).
+            target has moved (``tasks.FREE``, and ``tasks.PAPER_TOUCH_POSE``; the paper's
+            task set does not use it).
         touch_bonus: added to the free family's touch reward while the arm touches the
-            target (the paper family does not use it).
+            target (and to ``tasks.PAPER_TOUCH_POSE``'s; the paper's does not use it).
         touch_still_penalty: the free family's touch reward loses this much per scaled-joint
             unit (L1) the arm moves in a step while it touches the target: once in contact,
             hold still (0, the default: off; the paper family does not use it).
@@ -427,7 +428,7 @@ class Env:
             pose = self.pointing_poses[task.position]
         else:  # the pointing map, interpolated at where the target is meant to be
             pose = scale_joints(free.pointing_pose(target_xy))
-        if task.placement is None and self.tasks is tasks.PAPER:
+        if task.placement is None and self.tasks.actions is tasks.PAPER.actions:
             # the paper's rewards use no pose map: spare its hot path the interpolations
             touch_l1 = push_l1 = jnp.zeros((), jnp.float32)
         else:  # the touch and push pose maps (the free family's rewards)
@@ -506,6 +507,8 @@ class Env:
         sensordata = self._physics_forward(qpos, qvel, live)
         object_start = self._objects(qpos)
         obs, reward, terms = self._evaluate(qpos, sensordata, task, object_start, params)
+        if self.tasks.memory:
+            obs = jnp.concatenate([obs, tasks.first_memory(self.tasks, obs[:tasks.N_JOINTS])])
         invalid = (_traced_faults(task, params, self.tasks.n_actions)
                    | ~jnp.all(jnp.isfinite(qpos)) | ~jnp.all(jnp.isfinite(obs)))
         metrics = {**terms, "nan_actions": jnp.zeros((), jnp.float32), "invalid": invalid}
@@ -543,6 +546,9 @@ class Env:
         qpos, qvel, sensordata = self._physics_step(qpos, qvel, ctrl, ~state.done)
         obs, reward, terms = self._evaluate(qpos, sensordata, state.task, object_start, params,
                                             before)
+        if self.tasks.memory:
+            obs = jnp.concatenate([obs, tasks.next_memory(self.tasks, state.obs, before,
+                                                          action)])
         step = state.step + 1
         wrong_since = jnp.where((state.wrong_since < 0) & terms["wrong_moved"], step,
                                 state.wrong_since)

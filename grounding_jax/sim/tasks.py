@@ -40,7 +40,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from grounding_jax.core.checks import Rule, check_config
+from grounding_jax.core.checks import Rule, check_config, integer_at_least
 
 POSITIONS = ("left", "middle", "right")
 SHAPES = ("box", "cylinder", "sphere")
@@ -57,7 +57,8 @@ POPULATION_GRID = (3, 7)
 HAND_SCALE = 0.1
 #: What a task set's numeric fields accept.
 CONFIG_RULES: dict[str, Rule] = {"hand_scale": Rule("a finite number of metres > 0",
-                                                    lambda v: v > 0)}
+                                                    lambda v: v > 0),
+                                 "memory": integer_at_least(0)}
 N_JOINTS = 4
 N_POSITIONS = len(POSITIONS)
 N_WORDS = len(TARGET_WORDS)
@@ -137,6 +138,10 @@ class TaskSet:
             and its height the objects' centre. Needs table coordinates (``target_obs``
             ``"xy"`` or ``"population"``).
         hand_scale: the hand units' length scale in metres (default ``HAND_SCALE``).
+        memory: a short memory of the past, last in the observation (``obs_memory``): the
+            scaled joints of each of the ``memory`` steps before this one, newest first,
+            then the actions sent at those steps (0 before the first step; the joints at
+            reset stand in for steps before it). 0: none (the paper's).
     """
 
     name: str
@@ -144,6 +149,7 @@ class TaskSet:
     target_obs: str = "position"
     hand_obs: bool = False
     hand_scale: float = HAND_SCALE
+    memory: int = 0
 
     def __post_init__(self) -> None:
         names = self.action_names
@@ -190,8 +196,15 @@ class TaskSet:
         return slice(start, start + (3 if self.hand_obs else 0))
 
     @property
+    def obs_memory(self) -> slice:
+        """Where the memory of past joints, then past actions, lies in the observation
+        (empty without ``memory``)."""
+        start = self.obs_hand.stop
+        return slice(start, start + 2 * N_JOINTS * self.memory)
+
+    @property
     def obs_size(self) -> int:
-        return self.obs_hand.stop
+        return self.obs_memory.stop
 
     @property
     def action_size(self) -> int:
@@ -213,6 +226,22 @@ class TaskSet:
 
 
 PAPER = TaskSet("paper", (POINT, TOUCH, PUSH))
+
+
+def first_memory(task_set: TaskSet, joints: jax.Array) -> jax.Array:
+    """The memory part of the observation at reset: the joints at reset stand in for the
+    steps before it, no actions yet."""
+    m = task_set.memory
+    return jnp.concatenate([jnp.tile(joints, m), jnp.zeros(N_JOINTS * m, jnp.float32)])
+
+
+def next_memory(task_set: TaskSet, obs: jax.Array, joints: jax.Array, action: jax.Array
+                ) -> jax.Array:
+    """The memory part of the next observation: this step's joints (before it) and action
+    pushed in front of the previous observation's (``obs``), the oldest dropped."""
+    n, m = N_JOINTS, task_set.memory
+    past = obs[task_set.obs_memory]
+    return jnp.concatenate([joints, past[:n * (m - 1)], action, past[n * m:n * (2 * m - 1)]])
 
 
 def _avoid(t: Terms, params: Any) -> jax.Array:
@@ -259,15 +288,33 @@ FREE = TaskSet("free", (Action("point", _free_point_reward, _point_success),
 #: relative to the target, as a robot watching its hand and the object would (the paper's
 #: "online visual feedback"). Same actions, rewards and success rules as `FREE`.
 FREE_HAND = dataclasses.replace(FREE, name="free_hand", hand_obs=True)
+#: The paper's task set with a memory of the two steps before (joints and actions): the
+#: actor can tell where it is going, not only where it is (the paper's suggestion for touch's
+#: oscillation: "a recurrent network, memory of past positions"). Same actions, rewards and
+#: success rules as `PAPER`.
+PAPER_MEMORY = dataclasses.replace(PAPER, name="paper_memory", memory=2)
+
+
+#: The paper's task set with touch's reward the free family's (not the paper's): minus the L1
+#: distance of the joints to the slot's touching pose (the palm pressed on the target's top,
+#: `placement.touch_pose`), plus ``touch_bonus`` while the arm touches the target, less
+#: ``touch_moved_penalty`` per metre it moved (10 by default: 3 cm cost 0.3) and
+#: ``touch_other_penalty`` while it touches another object -- instead of the paper's minus the
+#: palm's distance to the target and -0.3 while touching it, under which a precise actor hovers.
+#: Point and push, the observation and the success rules are the paper's.
+PAPER_TOUCH_POSE = TaskSet("paper_touch_pose", (
+    POINT, Action("touch", _free_touch_reward, _touch_success), PUSH))
+#: `PAPER_TOUCH_POSE` with `PAPER_MEMORY`'s memory.
+PAPER_MEMORY_TOUCH_POSE = dataclasses.replace(PAPER_TOUCH_POSE, name="paper_memory_touch_pose",
+                                              memory=2)
 #: The task sets that cannot be replaced (saved agents name them).
-BUILT_IN = (PAPER, FREE, FREE_HAND)
+BUILT_IN = (PAPER, FREE, FREE_HAND, PAPER_MEMORY, PAPER_TOUCH_POSE, PAPER_MEMORY_TOUCH_POSE)
 TASK_SETS: dict[str, TaskSet] = {t.name: t for t in BUILT_IN}
 
 
 def register(task_set: TaskSet) -> TaskSet:
     """Make ``task_set`` available by its name to the configs (replacing one of that name,
-    except the built-in ones -- "paper", "free", "free_hand" -- which stay as they are).
-    Returns it."""
+    except the built-in ones, `BUILT_IN`, which stay as they are). Returns it."""
     for fixed in BUILT_IN:
         if task_set.name == fixed.name and task_set is not fixed:
             raise ValueError(f"task_set: the name {fixed.name!r} is built in and cannot be "
