@@ -1,7 +1,8 @@
 """The index of the one-off tuning outputs in ``results/tuning/``, generated from the files.
 
 Each JSON there was written by a tuning script (``benchmarks/free_tuning.py``,
-``benchmarks/tl_xy_tuning.py``, ``benchmarks/substeps.py --episodes 1200 --key K``); this
+``benchmarks/tl_xy_tuning.py``, ``benchmarks/substeps.py --episodes 1200 --key K``,
+``benchmarks/al_variants.py``); this
 script lists what each one measured and the numbers it holds, so the index cannot drift from
 the files. It writes ``results/tuning/README.md`` and the same table into ``docs/tuning.md``.
 
@@ -65,12 +66,31 @@ def _substeps_rows(files: list[pathlib.Path]) -> list[str]:
     return rows
 
 
+def _al_variant_rows(files: list[pathlib.Path]) -> list[str]:
+    rows = ["| file | key | variant | changed from the shipped settings | agents × episodes | "
+            "median agent: point / touch / push, by start noise |", "|---|---|---|---|---|---|"]
+    for p in files:
+        d = json.loads(p.read_text())
+        for name, v in d["variants"].items():
+            changed = [f"{k}={x}" for k, x in v["fields"].items()]
+            static = [f"task_set={v['task_set']}"] if v["task_set"] != "paper" else []
+            if v.get("heads"):
+                static.append("heads=" + "-".join(map(str, v["heads"])))
+            changed = ", ".join(static + changed) or "none"
+            rates = "; ".join(f"±{n}: " + " / ".join(_pct(lv["by_action"][a]) for a in ACTIONS)
+                              for n, lv in v["levels"].items())
+            rows.append(f"| `{p.name}` | {d['key']} | {name} | {changed} | {d['agents']} × "
+                        f"{d['phase1'] + d['phase2']} | {rates} |")
+    return rows
+
+
 def index() -> str:
     """The index, as Markdown."""
     free = sorted(TUNING.glob("free_tuning_*.json"))
     tl_xy = sorted(TUNING.glob("tl_xy_tuning_k*.json"))
     substeps = sorted(TUNING.glob("substeps_*.json"))
-    known = set(free) | set(tl_xy) | set(substeps)
+    variants = sorted(TUNING.glob("al_variants_*.json"))
+    known = set(free) | set(tl_xy) | set(substeps) | set(variants)
     other = sorted(p.name for p in TUNING.glob("*.json") if p not in known)
     lines = [
         "# Tuning outputs",
@@ -102,6 +122,14 @@ def index() -> str:
         "table of *Benchmarks* (`docs/benchmarks.md`).",
         "",
         *_substeps_rows(substeps),
+        "",
+        f"## Variants of the paper family's action learner ({len(variants)} runs)",
+        "",
+        "Written by `benchmarks/al_variants.py`; they fed *Touch with memory* and *Every "
+        "action from random starts* (`docs/beyond.md`). Every action on all 36 layouts, "
+        "judged from the file's evaluation key at each start noise (0: home).",
+        "",
+        *_al_variant_rows(variants),
     ]
     if other:
         lines += ["", "## Other files", "", *(f"- `{n}`" for n in other)]

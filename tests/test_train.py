@@ -288,7 +288,84 @@ def test_only_free_robot_reruns_that_part_with_the_whole_runs_keys(quick, capsys
     assert "needs a whole run" in capsys.readouterr().err
 
 
+def test_the_random_starts_stage_judges_every_action_and_reruns_alike(quick, capsys,
+                                                                      monkeypatch):
+    import dataclasses
+
+    from grounding_jax.paper import stage
+
+    data = json.loads((quick / "metrics.json").read_text())
+    entry = data["stages"]["random_starts"]
+    assert entry["config"]["noise"] == [0.0, 0.15, 0.3, 0.5]
+    res = entry["result"]
+    assert res["agents"] == train.PROFILES["quick"]["al_seeds"] and res["tasks"] == 54
+    assert list(res["levels"]) == ["0.0", "0.15", "0.3", "0.5"]
+    for level in res["levels"].values():
+        assert set(level["by_action"]) == {"point", "touch", "push"}
+        assert all(0 <= v <= 1 for v in level["by_action"].values())
+    # perform (its TL finding the object) with the judge's keys: where the TL found the
+    # object, the episode succeeds or fails as the batched judge said
+    rows = [r for rows in res["perform_checks"].values() for r in rows]
+    assert len(rows) == 4 * 3 * 3
+    assert all(r["judge"] == r["perform"] for r in rows if r["located"])
+    assert data["wall_s"]["random_starts"] == entry["wall_s"]
+    report = (quick / "REPORT.md").read_text()
+    assert "## Beyond the paper: every action from random starts" in report
+    assert "| ±0.3 |" in report
+    # one stage again, with the whole run's keys: the same result, the rest kept
+    assert train.main(["--out", str(quick), "--only", "random_starts"]) == 0
+    after = json.loads((quick / "metrics.json").read_text())
+    assert after["stages"]["random_starts"]["result"] == res
+    assert "random_starts_rerun" in after["wall_s"] and "random_starts" in after["reruns"]
+    # a change to a stage that --only does not run is refused, not ignored
+
+    @dataclasses.dataclass(frozen=True)
+    class Toy:
+        x: int = 0
+
+    toy = stage.Stage("toy", "Toy", Toy, run=lambda *a: {}, report=lambda *a: "")
+    monkeypatch.setitem(stage._REGISTRY, "toy", toy)
+    capsys.readouterr()
+    assert train.main(["--out", str(quick), "--only", "random_starts",
+                       "--set", "toy.x=1"]) == 2
+    assert "toy" in capsys.readouterr().err
+
+
+def test_the_touch_memory_stage_saves_a_robot_that_remembers(quick):
+    import grounding_jax as gj
+    from grounding_jax.sim import tasks
+
+    data = json.loads((quick / "metrics.json").read_text())
+    res = data["stages"]["touch_memory"]["result"]
+    assert set(res["variants"]) == {"paper", "paper_memory_touch_pose"}
+    for row in res["variants"].values():
+        assert list(row["levels"]) == ["0.0", "0.3"]
+        assert set(row["levels"]["0.0"]["touch_failures"]) == {
+            "no_late_contact", "target_moved_3cm", "wrong_object_moved"}
+    # the run's own agents are judged as the random-starts stage judges them: from home
+    # (no draw in the start) the two stages' keys give the same episodes
+    assert res["variants"]["paper"]["levels"]["0.0"]["by_action"] == \
+        data["stages"]["random_starts"]["result"]["levels"]["0.0"]["by_action"]
+    assert all(r["judge"] == r["perform"] for r in res["perform_checks"] if r["located"])
+    robot = gj.load(quick / "touch_memory" / "modules")
+    assert robot.env_config.task_set == "paper_memory_touch_pose" and robot.n_agents == 2
+    out = robot.perform("touch", "red", layout=3)
+    memory = tasks.get("paper_memory_touch_pose").obs_memory
+    obs = np.asarray(out["trajectory"].obs)
+    assert obs.shape == (100, res["saved_obs_size"]) and res["saved_obs_size"] == 27
+    # carried from step to step: each step's memory starts with the joints of the step before
+    # (until the episode ends: a finished episode's state stays as it ended)
+    done = np.asarray(out["trajectory"].done)
+    end = int(np.argmax(done)) + 1 if done.any() else len(done)
+    assert end > 10
+    np.testing.assert_array_equal(obs[1:end, memory][:, :4], obs[:end - 1, :4])
+    assert "## Beyond the paper: touch with memory" in (quick / "REPORT.md").read_text()
+
+
 @pytest.mark.parametrize("argv, field", [
+    (["--set", "random_starts.nois=0.1"], "random_starts.nois"),
+    (["--set", "random_starts.noise=2"], "noise"),
+    (["--set", "nostage.x=1"], "nostage"),
     (["--profile", "huge"], "--profile"),
     (["--backend", "ode"], "--backend"),
     (["--set", "tl_epoch=5"], "tl_epoch"),

@@ -74,6 +74,18 @@ def table(metrics: dict, perform_check: dict | None = None) -> str:
             f"| Beyond: names what it only watches (another agent's episodes, motor "
             f"resonance from the joints), median of {n} other agents | proposed | "
             f"{_pct(obs['other_agent'])} |")
+    stages = metrics.get("stages") or {}
+    if "random_starts" in stages and "0.3" in stages["random_starts"]["result"]["levels"]:
+        lv = stages["random_starts"]["result"]["levels"]["0.3"]["by_action"]
+        rows.append(f"| Beyond: every action from random starts within ±0.3 (goals 90% / 85% / "
+                    f"90%), point / touch / push | – | {_trio(lv)} |")
+    if "touch_memory" in stages:
+        tm = stages["touch_memory"]["result"]["variants"]
+        first = {v: next(iter(tm[v]["levels"].values()))["by_action"] for v in tm}
+        cells = "; ".join(f"{tm[v]['what']} {_trio(first[v])}"
+                          for v in tm if v != "paper")
+        rows.append(f"| Beyond: touch with memory, and touch reaching a touching pose (not the "
+                    f"paper's reward), from home | proposed | {cells} |")
     if perform_check is not None:
         p = perform_check
         rows.append(

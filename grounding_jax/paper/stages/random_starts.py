@@ -109,9 +109,9 @@ def judge_levels(agents, env_config, key: jax.Array, config: RandomStartsConfig,
 def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: RandomStartsConfig
         ) -> dict:
     """Judge the saved robot's agents at each noise level (see the module doc)."""
-    import grounding_jax as gj
+    from grounding_jax.robot import trained
 
-    robot = gj.load(inputs.modules)
+    robot = trained.load(inputs.modules)
     agents = robot.agents if robot.n_agents else trees.add_axis(robot.al.agent)
     saved = robot.saved_agent or 0
     tasks = al_eval.all_tasks(LAYOUTS[config.layouts])
@@ -130,9 +130,28 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: RandomStartsC
     return res
 
 
+def pct(v: float) -> str:
+    """A rate in [0, 1] as a whole percentage."""
+    return f"{100 * v:.0f}%"
+
+
+def rate_cell(level: dict, action: str) -> str:
+    """A level's median agent for ``action``, with the min-max over agents."""
+    spread = level["spread"][action]
+    return f"{pct(level['by_action'][action])} ({pct(spread[0])}-{pct(spread[-1])})"
+
+
+def perform_sentence(checks: int, agreement: float | None) -> list[str]:
+    """The REPORT's line on episodes performed again through ``Robot.perform``."""
+    if agreement is None:
+        return []
+    return ["", f"`Robot.perform` (its TL finding the object) on {checks} of these episodes, "
+            f"with the judge's keys: the same outcome as the batched judge in "
+            f"{pct(agreement)}."]
+
+
 def report(res: dict, config: RandomStartsConfig) -> str:
     """The stage's REPORT section: a row per noise level."""
-    pct = lambda v: f"{100 * v:.0f}%"  # noqa: E731
     lines = [f"Success of the median AL agent of {res['agents']} (min-max over agents; the "
              f"saved robot's agent in brackets) on {res['tasks']} tasks x {res['starts']} "
              "start(s), from joints uniform within ±noise (scaled joint units; each range "
@@ -140,8 +159,7 @@ def report(res: dict, config: RandomStartsConfig) -> str:
              "generalizes).", "", "| start noise | point | touch | push | touch: target "
              "moved (median) |", "|---|---|---|---|---|"]
     for noise, lv in res["levels"].items():
-        cells = [f"{pct(lv['by_action'][a])} ({pct(lv['spread'][a][0])}-"
-                 f"{pct(lv['spread'][a][-1])}) [{pct(lv['saved_agent'][a])}]"
+        cells = [f"{rate_cell(lv, a)} [{pct(lv['saved_agent'][a])}]"
                  for a in ("point", "touch", "push")]
         label = "0 (home)" if float(noise) == 0 else f"±{noise}"
         lines.append(f"| {label} | {' | '.join(cells)} | "
@@ -152,12 +170,8 @@ def report(res: dict, config: RandomStartsConfig) -> str:
         lines += ["", f"Goal at ±{GOAL_NOISE}: point / touch / push >= "
                   f"{' / '.join(pct(g) for g in GOALS.values())}: "
                   + (f"missed for {', '.join(missed)}." if missed else "met.")]
-    if res["perform_agreement"] is not None:
-        n = sum(len(v) for v in res["perform_checks"].values())
-        lines += ["", f"`Robot.perform` (its TL finding the object) on {n} of these episodes, "
-                  f"with the same keys: the same outcome as the batched judge in "
-                  f"{pct(res['perform_agreement'])}."]
-    return "\n".join(lines)
+    n = sum(len(v) for v in res["perform_checks"].values())
+    return "\n".join(lines + perform_sentence(n, res["perform_agreement"]))
 
 
 STAGE = Stage(name="random_starts", title="Beyond the paper: every action from random starts",

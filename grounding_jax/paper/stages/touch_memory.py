@@ -1,0 +1,187 @@
+"""Touch with memory: the paper family's actor given a memory of its last two steps (joints and
+actions, `grounding_jax.sim.tasks.PAPER_MEMORY`), trained by CACLA on the same budget, beside
+touch's reward changed to the free family's (reach the slot's touching pose, contact paid,
+the target's motion penalized: ``PAPER_TOUCH_POSE``, not the paper's) and both together.
+
+The paper suggests "a recurrent network, memory of past positions" for touch's oscillation.
+Every variant is trained from the stage's key on the run's schedule and judged, with the
+run's own AL agents (no memory, the paper's reward), the way the ``random_starts`` stage
+judges: all three actions, from home and from random starts, the same tasks and keys. The
+variant ``save`` names is saved as a whole robot (the run's TL, that variant's agents, an AN
+fitted on its agent 0) in ``<out>/modules``; ``grounding_jax.load`` it and ``perform``: the
+memory is part of the observation, carried in the env's state from step to step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import jax
+import numpy as np
+
+from grounding_jax.core import trees, xla
+from grounding_jax.core.io import atomic_write_text
+from grounding_jax.learn import al, an, cacla
+from grounding_jax.paper import al_eval
+from grounding_jax.paper.al_experiments import TUNED, TUNED_AL
+from grounding_jax.paper.stage import Inputs, Stage
+from grounding_jax.paper.stages import random_starts as RS
+from grounding_jax.sim import tasks, tl_data
+from grounding_jax.sim.env import Env, EnvConfig, EnvParams
+
+#: the variants' task sets, and what each changes from the paper's
+VARIANTS = {"paper_memory": "memory, the paper's reward",
+            "paper_touch_pose": "no memory, touch reaches a touching pose",
+            "paper_memory_touch_pose": "memory, touch reaches a touching pose"}
+GOAL_TOUCH, GOAL_OTHERS = 0.85, 0.95
+
+
+@dataclasses.dataclass(frozen=True)
+class TouchMemoryConfig:
+    """The schedule (agents, phase 1 and 2 episodes: the quick profile's AL), the bonus the
+    touching-pose variants get while touching (``EnvParams.touch_bonus``) and their
+    actor-critics (``heads``: touch's own, point and push sharing one; with one for all,
+    touch's larger reward took point's network, with one each push lost its), the variants
+    (task
+    sets of `VARIANTS`), the one saved as a robot, and how they are judged."""
+
+    seeds: int = 2
+    phase1: int = 150
+    phase2: int = 150
+    touch_bonus: float = 0.0
+    heads: tuple[int, ...] = (0, 1, 0)
+    variants: tuple[str, ...] = ("paper_memory_touch_pose",)
+    save: str = "paper_memory_touch_pose"
+    noise: tuple[float, ...] = (0.0, 0.3)
+    layouts: str = "shapes"
+    perform_checks: int = 3
+
+    def __post_init__(self) -> None:
+        bad = [v for v in self.variants if v not in VARIANTS]
+        if bad or not self.variants:
+            raise ValueError(f"variants: {bad or '()'} not accepted; accepted: one or more of "
+                             f"{list(VARIANTS)}")
+        if self.save not in self.variants:
+            raise ValueError(f"save: {self.save!r}; accepted: one of variants "
+                             f"{list(self.variants)}")
+        if self.seeds < 1 or self.phase1 < 0 or self.phase1 + self.phase2 < 1:
+            raise ValueError(f"seeds >= 1 and phase1 + phase2 >= 1, got {self.seeds}, "
+                             f"{self.phase1} + {self.phase2}")
+        RS.RandomStartsConfig(self.noise, self.layouts, 1, self.perform_checks)  # checks them
+        cacla.CaclaConfig(task_set=tasks.PAPER_TOUCH_POSE.name, heads=self.heads)
+
+
+def train_variant(keys: jax.Array, phase1: int, phase2: int, task_set: str,
+                  fields: dict, heads: tuple[int, ...] | None = None
+                  ) -> tuple[cacla.Agent, al.ALConfig]:
+    """Agents ``[len(keys)]`` of task set ``task_set`` trained with the shipped settings
+    (`TUNED`, `TUNED_AL`) changed by ``fields`` (traced `al.hyper` fields); ``heads``: the
+    actor-critic each action uses (``cacla.CaclaConfig.heads``; None: one for all)."""
+    learner = cacla.CaclaConfig(task_set=task_set)
+    if heads is not None:
+        learner = dataclasses.replace(learner, heads=heads)
+    cfg = al.ALConfig(env=EnvConfig(task_set=task_set), learner=learner,
+                      phase1_episodes=phase1, phase2_episodes=phase2)
+    hp = al.validate(al.hyper(**{**TUNED, **TUNED_AL, **fields}))
+    run = xla.physics_jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)), Env(cfg.env))
+    agents, _ = run(keys, hp)
+    return jax.block_until_ready(agents), cfg
+
+
+def _namer(key: jax.Array, robot, agent, env_config: EnvConfig):
+    """An AN fitted on ``agent``'s hidden layer (the robot's TL and ESN config); returns
+    (net, its test accuracy)."""
+    data = tl_data.load()
+    tl_h = np.asarray(robot.tl.hidden_layer(data.bitmaps, data.symbols))
+    k_home, k_rand, k_esn = jax.random.split(key, 3)
+    env = Env(env_config)
+    home = an.dataset(agent, tl_h, k_home, 100, 0.0, env)
+    rand = an.dataset(agent, tl_h, k_rand, 100, 0.5, env)
+    fit = an.train_namer(k_esn, home, rand, config=robot.an.config)
+    return fit["net"], float(fit["test"]["acc"])
+
+
+def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryConfig
+        ) -> dict:
+    """Train and judge every variant, save one (see the module doc)."""
+    from grounding_jax.robot import trained
+
+    robot = trained.load(inputs.modules)
+    k_train, k_judge, k_an = jax.random.split(key, 3)
+    judged = RS.RandomStartsConfig(config.noise, config.layouts, 1, 0)
+    shipped = robot.agents if robot.n_agents else trees.add_axis(robot.al.agent)
+    rows = {"paper": {"what": "the run's AL agents: no memory, the paper's reward",
+                      "levels": RS.judge_levels(shipped, robot.env_config, k_judge, judged)[0]}}
+    keys = jax.random.split(k_train, config.seeds)
+    fields = {"touch_bonus": config.touch_bonus}
+    for ts in config.variants:
+        pose = "touch_pose" in ts
+        agents, cfg = train_variant(keys, config.phase1, config.phase2, ts,
+                                    fields if pose else {}, config.heads if pose else None)
+        levels, raw = RS.judge_levels(agents, cfg.env, k_judge, judged)
+        rows[ts] = {"what": VARIANTS[ts], "levels": levels}
+        if ts == config.save:
+            saved_agents, saved_cfg, saved_raw = agents, cfg, raw[str(config.noise[0])]
+    agent = trees.take(saved_agents, 0)
+    net, an_acc = _namer(k_an, robot, agent, saved_cfg.env)
+    modules = pathlib.Path(out) / "modules"
+    trained.save(modules, robot.tl.params, robot.tl.hyper, agent, saved_cfg.learner, net,
+                 robot.an.config, saved_cfg.env,
+                 extra={"stage": "touch_memory", "variant": config.save,
+                        "touch_bonus": config.touch_bonus if "touch_pose" in config.save
+                        else None},
+                 agents=saved_agents, saved_agent=0)
+    mine = trained.load(modules)  # loaded and asked to perform, as a user would
+    task_list = al_eval.all_tasks(RS.LAYOUTS[config.layouts])
+    judge_keys = jax.random.split(k_judge, (1, int(task_list.action.shape[0])))
+    checks = RS.perform_checks(mine, saved_raw, judge_keys, task_list,
+                               EnvParams(start_noise=config.noise[0]), config.perform_checks, 0)
+    res = {"seeds": config.seeds, "episodes": config.phase1 + config.phase2,
+           "touch_bonus": config.touch_bonus,
+           "touch_moved_penalty": float(EnvParams().touch_moved_penalty), "variants": rows,
+           "saved": config.save,
+           "saved_obs_size": tasks.get(config.save).obs_size, "saved_an_test_acc": an_acc,
+           "perform_checks": checks,
+           "perform_agreement": (float(np.mean([r["judge"] == r["perform"] for r in checks]))
+                                 if checks else None)}
+    atomic_write_text(pathlib.Path(out) / "touch_memory.json", json.dumps(res, indent=1))
+    return res
+
+
+def report(res: dict, config: TouchMemoryConfig) -> str:
+    """The stage's REPORT section: a row per variant and start noise."""
+    pct = RS.pct
+    lines = [f"{res['seeds']} agents per variant, {res['episodes']} episodes each (the run's "
+             "AL schedule), judged on the same tasks and keys; median agent (min-max). A "
+             "touching pose: touch's reward is minus the joints' L1 distance to the slot's "
+             "touching pose (the palm on the target's top), +{b} while touching the target, "
+             "-{m} per metre it moved, instead of the paper's minus the palm's distance and "
+             "-0.3 while touching (not the paper's reward).".format(
+                 b=res["touch_bonus"], m=res["touch_moved_penalty"]), "",
+             "| variant | start | point | touch | push | touch failures: no late contact / "
+             "target moved >= 3 cm |", "|---|---|---|---|---|---|"]
+    for row in res["variants"].values():
+        for noise, lv in row["levels"].items():
+            cells = [RS.rate_cell(lv, a) for a in ("point", "touch", "push")]
+            f = lv["touch_failures"]
+            start = "home" if float(noise) == 0 else f"±{noise}"
+            lines.append(f"| {row['what']} | {start} | {' | '.join(cells)} | "
+                         f"{pct(f['no_late_contact'])} / {pct(f['target_moved_3cm'])} |")
+    saved = next(iter(res["variants"][res["saved"]]["levels"].values()))["by_action"]
+    met = saved["touch"] >= GOAL_TOUCH and min(saved["point"], saved["push"]) >= GOAL_OTHERS
+    start = "home" if config.noise[0] == 0 else f"starts within ±{config.noise[0]}"
+    lines += ["", f"Goal (from {start}): touch >= {pct(GOAL_TOUCH)} with point and push >= "
+              f"{pct(GOAL_OTHERS)}: {'met' if met else 'missed'} by the saved variant "
+              f"({VARIANTS[res['saved']]}, observation of {res['saved_obs_size']} units). "
+              f"Saved as a robot in `touch_memory/modules` with an AN fitted on its agent 0 "
+              f"(test accuracy {pct(res['saved_an_test_acc'])})."]
+    lines += RS.perform_sentence(len(res["perform_checks"]), res["perform_agreement"])
+    return "\n".join(lines)
+
+
+STAGE = Stage(name="touch_memory", title="Beyond the paper: touch with memory",
+              config=TouchMemoryConfig, run=run, report=report,
+              profiles={"paper": {"seeds": 8, "phase2": 1050, "layouts": "all",
+                                  "variants": tuple(VARIANTS), "perform_checks": 6}})
