@@ -464,8 +464,8 @@ def rerun(out: pathlib.Path, args: argparse.Namespace, k_xy, k_free, k_strip, k_
         print(f"--only {part}: --set changes stages it does not run: {others}",
               file=sys.stderr)
         return 2
-    robot = gj.load(modules_dir)
-    if robot.free is None and part == "free-robot":
+    robot = gj.load(modules_dir) if part in ONLY else None  # a stage loads what it needs
+    if part == "free-robot" and robot.free is None:
         print(f"--only {part}: {modules_dir} holds no continuous TL", file=sys.stderr)
         return 2
     t = time.perf_counter()
