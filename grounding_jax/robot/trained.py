@@ -46,7 +46,7 @@ import numpy as np
 from grounding_jax.core import guard, trees, xla
 from grounding_jax.core.checkpoint import Checkpointer, CheckpointError, read_config
 from grounding_jax.learn import al, cacla, esn, learners, tl, tl_xy
-from grounding_jax.robot import observer
+from grounding_jax.robot import observer, seeing
 from grounding_jax.sim import scene, tasks, tl_data
 from grounding_jax.sim.env import DEFAULT_PARAMS, Env, EnvConfig, EnvParams, State, make_task
 
@@ -191,6 +191,7 @@ class Robot:
     free: TrainedFree | None = None
     agents: cacla.Agent | None = None
     saved_agent: int | None = None
+    frames_namers: dict[str, seeing.FramesNamer] | None = None
     # perform's compiled episode, one per step count (filled on first use)
     _performers: dict[Any, Callable] = dataclasses.field(
         default_factory=dict, init=False, repr=False, compare=False)
@@ -458,6 +459,23 @@ class Robot:
         out = self.resonance(trajectory, params)
         return [r["named"] for r in out] if isinstance(out, list) else out["named"]
 
+    def watch_frames(self, frames: Any, family: str = "paper", camera: str = "observer"
+                     ) -> tuple[str, str] | list:
+        """Name an action from rendered frames only -- ``grounding_jax.frames(episode)``,
+        ``uint8 [T, H, W, 3]``, or a batch ``[N, T, H, W, 3]`` -- with no joint angles and no
+        simulator state (see `grounding_jax.robot.seeing`): (action word, the target's colour
+        word), a list for a batch. ``family``: whose frames ("paper": objects on the slots,
+        "free": objects anywhere); ``camera``: the one they were rendered from (the namer's).
+
+        Raises:
+            ValueError: frames of another shape or type, an unknown family, a camera other
+                than its namer's, or modules saved without a frames namer for it (the
+                ``watch_frames`` stage fits one and saves the robot with it).
+        """
+        names = (self.free.env_config if family == "free" and self.free
+                 else self.env_config).tasks.action_names
+        return seeing.watch(self.frames_namers, frames, family, names, camera)
+
 
 def _count(agents: Any) -> int:
     return 0 if agents is None else int(jax.tree.leaves(agents)[0].shape[0])
@@ -519,6 +537,8 @@ def _configs(config: dict) -> tuple[tl.TLConfig, tl.TLHyper, cacla.CaclaConfig, 
                 _check_agents(f, "free")
         if "al_agents" in config:
             _check_agents(config["al_agents"], "al_agents")
+        if "frames" in config:
+            seeing.namers_like(config["frames"])
         t = config["tl"]
         tl_cfg = tl.TLConfig(max_hidden=t["max_hidden"], max_replication=t["max_replication"])
         # input scales: 1 (the paper's) in configs written before they existed
@@ -548,6 +568,8 @@ def _like(config: dict):
             like["free"]["an"] = _esn_like(esn.ESNConfig(**f["an"]))
     if "al_agents" in config:
         like["al_agents"] = _stacked_like(al_cfg, config["al_agents"]["n_agents"], k)
+    if "frames" in config:
+        like["frames"] = seeing.namers_like(config["frames"])
     return like | {"tl": jax.eval_shape(lambda: tl.init(k, tl_hp, tl_cfg)),
                    "al": jax.eval_shape(lambda: cacla.init(k, al_cfg)),
                    "an": _esn_like(esn_cfg)}
@@ -563,7 +585,7 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
          agent: cacla.Agent, al_config: cacla.CaclaConfig, net: esn.ESN,
          esn_config: esn.ESNConfig, env_config: EnvConfig, extra: dict | None = None,
          free_modules: dict | None = None, agents: cacla.Agent | None = None,
-         saved_agent: int = 0) -> None:
+         saved_agent: int = 0, frames_namers: dict | None = None) -> None:
     """Save the three trained modules (replacing an earlier save there only once the new one
     is complete).
 
@@ -587,6 +609,8 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         agents: every paper-family AL agent trained beside ``agent`` (stacked; optional:
             the robot can then watch, or act as, another of them).
         saved_agent: the index of ``agent`` among ``agents``.
+        frames_namers: `grounding_jax.robot.seeing.FramesNamer` by family ("paper",
+            "free"), optional (the robot can then `Robot.watch_frames`).
     """
     directory = pathlib.Path(directory)
     config = {
@@ -616,6 +640,9 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         if free_modules.get("net") is not None:
             config["free"]["an"] = dataclasses.asdict(free_modules["esn_config"])
             tree["free"]["an"] = free_modules["net"]
+    if frames_namers:
+        config["frames"] = seeing.namers_config(frames_namers)
+        tree["frames"] = dict(frames_namers)
     directory.parent.mkdir(parents=True, exist_ok=True)
     with guard.folder_lock(directory.parent, f"saving {directory.name}"):
         tmp = directory.with_name(f".{directory.name}.tmp-{os.getpid()}")
@@ -633,6 +660,23 @@ def save(directory: str | pathlib.Path, tl_params: tl.TLParams, tl_hyper: tl.TLH
         os.replace(tmp, directory)
         if old.exists():
             shutil.rmtree(old)
+
+
+def save_robot(directory: str | pathlib.Path, robot: Robot, extra: dict | None = None) -> None:
+    """Save a `Robot` as it is (e.g. a loaded one given ``frames_namers`` by
+    ``dataclasses.replace``) with `save`; ``extra`` replaces its config's notes."""
+    free = None
+    if robot.free is not None:
+        f = robot.free
+        free = {"xy_params": f.xy_params, "xy_config": f.xy_config, "agent": f.al.agent,
+                "al_config": f.al.config, "env_config": f.env_config, "params": f.params,
+                "agents": f.agents, "saved_agent": f.saved_agent,
+                "net": f.an.net if f.an else None, "esn_config": f.an.config if f.an else None}
+    save(directory, robot.tl.params, robot.tl.hyper, robot.al.agent, robot.al.config,
+         robot.an.net, robot.an.config, robot.env_config,
+         extra=robot.config.get("extra") if extra is None else extra, free_modules=free,
+         agents=robot.agents, saved_agent=robot.saved_agent or 0,
+         frames_namers=robot.frames_namers)
 
 
 def load(directory: str | pathlib.Path) -> Robot:
@@ -671,7 +715,8 @@ def load(directory: str | pathlib.Path) -> Robot:
                  al=TrainedAL(tree["al"], al_cfg), an=TrainedAN(tree["an"], esn_cfg),
                  env_config=env_cfg, config=config, free=modules_free,
                  agents=tree.get("al_agents"),
-                 saved_agent=config.get("al_agents", {}).get("saved_agent"))
+                 saved_agent=config.get("al_agents", {}).get("saved_agent"),
+                 frames_namers=tree.get("frames"))
 
 
 def seal(directory: str | pathlib.Path) -> None:
