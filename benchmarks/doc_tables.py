@@ -28,6 +28,7 @@ TABLES = {
     "search": ("results/benchmarks/search.json", "search"),
     "compile_options": ("results/benchmarks/compile_options.json", "compile_options"),
     "physics_options": ("results/benchmarks/physics_options.json", "physics_options"),
+    "frames_levers": ("results/tuning/frames_levers.json", "frames_levers"),
 }
 BLOCK = re.compile(r"(<!-- table: (\w+) -->\n).*?(<!-- end table -->)", re.S)
 

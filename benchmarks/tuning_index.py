@@ -84,13 +84,29 @@ def _al_variant_rows(files: list[pathlib.Path]) -> list[str]:
     return rows
 
 
+def _frames_rows(files: list[pathlib.Path]) -> list[str]:
+    rows = ["| file | key | own episodes | namer | others named right: action and target "
+            "(action / target), each draw of the fit |", "|---|---|---|---|---|"]
+    for p in files:
+        d = json.loads(p.read_text())
+        groups: dict[tuple[str, str], list[dict]] = {}
+        for r in d["rows"]:
+            groups.setdefault((r["episodes"], r["namer"]), []).append(r["others"])
+        for (episodes, namer), got in groups.items():
+            cells = ", ".join(f"{_pct(g['both'])} ({_pct(g['action'])} / {_pct(g['target'])})"
+                              for g in got)
+            rows.append(f"| `{p.name}` | {d['key']} | {episodes} | {namer} | {cells} |")
+    return rows
+
+
 def index() -> str:
     """The index, as Markdown."""
     free = sorted(TUNING.glob("free_tuning_*.json"))
     tl_xy = sorted(TUNING.glob("tl_xy_tuning_k*.json"))
     substeps = sorted(TUNING.glob("substeps_*.json"))
     variants = sorted(TUNING.glob("al_variants_*.json"))
-    known = set(free) | set(tl_xy) | set(substeps) | set(variants)
+    frames = sorted(TUNING.glob("frames_levers*.json"))
+    known = set(free) | set(tl_xy) | set(substeps) | set(variants) | set(frames)
     other = sorted(p.name for p in TUNING.glob("*.json") if p not in known)
     lines = [
         "# Tuning outputs",
@@ -131,6 +147,12 @@ def index() -> str:
         "",
         *_al_variant_rows(variants),
     ]
+    if frames:
+        lines += ["", f"## Naming from frames ({len(frames)} runs)", "",
+                  "Written by `benchmarks/frames_levers.py`; they fed *Naming from the camera* "
+                  "(`docs/beyond.md`). The namer is fitted on the saved robot's own episodes and "
+                  "judged on the run's other agents' episodes, rendered at "
+                  "`grounding_jax.frames`' defaults.", "", *_frames_rows(frames)]
     if other:
         lines += ["", "## Other files", "", *(f"- `{n}`" for n in other)]
     return "\n".join(lines) + "\n"

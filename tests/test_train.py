@@ -362,6 +362,28 @@ def test_the_touch_memory_stage_saves_a_robot_that_remembers(quick):
     assert "## Beyond the paper: touch with memory" in (quick / "REPORT.md").read_text()
 
 
+def test_the_watch_frames_stage_saves_a_robot_that_names_rendered_frames(quick):
+    import grounding_jax as gj
+
+    data = json.loads((quick / "metrics.json").read_text())
+    res = data["stages"]["watch_frames"]["result"]["families"]["paper"]
+    assert res["episodes"] == 3 and len(res["rows"]) == 3 and res["own_episodes"] == 12
+    for route in ("frames", "joints"):
+        both = np.mean([r[route] == r["truth"] for r in res["rows"]])
+        assert res[f"{route}_both"] == pytest.approx(both)
+    robot = gj.load(quick / "watch_frames" / "modules")
+    # the run's robot as it was saved, with its namer added
+    assert set(robot.frames_namers) == {"paper"}
+    assert robot.n_agents == gj.load(quick / "modules").n_agents
+    assert all(r["agent"] in res["agents"] and r["agent"] != robot.saved_agent
+               for r in res["rows"])  # other agents' episodes, never its own
+    # loaded, it names frames the way the stage's namer did (the same arrays)
+    frames = gj.frames(robot.perform("push", "red", layout=3), width=120, height=80, every=5)
+    assert robot.watch_frames(frames) in {
+        (a, c) for a in ("point", "touch", "push") for c in ("red", "green", "blue")}
+    assert "## Beyond the paper: naming from the camera" in (quick / "REPORT.md").read_text()
+
+
 @pytest.mark.parametrize("argv, field", [
     (["--set", "random_starts.nois=0.1"], "random_starts.nois"),
     (["--set", "random_starts.noise=2"], "noise"),

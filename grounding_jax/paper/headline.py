@@ -86,6 +86,13 @@ def table(metrics: dict, perform_check: dict | None = None) -> str:
                           for v in tm if v != "paper")
         rows.append(f"| Beyond: touch with memory, and touch reaching a touching pose (not the "
                     f"paper's reward), from home | proposed | {cells} |")
+    if "watch_frames" in stages:
+        wf = {f: r for f, r in stages["watch_frames"]["result"]["families"].items()
+              if r.get("episodes")}
+        cells = "; ".join(f"{f} family {_pct(r['frames_both'])} (joint angles "
+                          f"{_pct(r['joints_both'])})" for f, r in wf.items())
+        rows.append(f"| Beyond: names other agents' acts from rendered frames only (goal 90%), "
+                    f"action and target right | proposed | {cells} |")
     if perform_check is not None:
         p = perform_check
         rows.append(

@@ -427,8 +427,8 @@ def _observer_report(obs: dict | None) -> list[str]:
         lines.append(f"| {label} | " + " | ".join(str(m[i][j]) for i in range(3)
                                                     for j in range(3) if i != j) + " |")
     lines += ["", "![observer](observer/observer.png)", "",
-              "Not done: the camera route (naming from frames instead of joints; "
-              "`observer.frames` is null)." if obs.get("frames") is None else ""]
+              "Naming from frames only (no joint angles) is the `watch_frames` stage: its "
+              "section below." if obs.get("frames") is None else ""]
     return lines
 
 

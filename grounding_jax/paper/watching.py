@@ -194,14 +194,15 @@ def run(key: jax.Array, out: Any, robot, episodes: int, scripted_per_family: int
 
     Returns:
         ``other_agent`` (the median watched agent's accuracy, both families' agents
-        together), ``frames`` (None: the camera route is not built), ``paper``, ``free``
-        and ``scripted`` (see `judge`), ``goal``.
+        together), ``frames`` (None: naming from frames is the ``watch_frames``
+        stage's), ``paper``, ``free`` and ``scripted`` (see `judge`), ``goal``.
     """
     out = pathlib.Path(out)
     k_paper, k_free, k_script = jax.random.split(key, 3)
     res: dict[str, Any] = {"episodes_per_agent": episodes, "steps": STEPS, "goal": GOAL,
                            "frames": None,
-                           "frames_note": "the camera route is not built"}
+                           "frames_note": "naming from frames only is the watch_frames "
+                                          "stage (stages.watch_frames in metrics.json)"}
     families = _families(robot)
     parts = []
     for (name, fam), k_fam in zip(families.items(), (k_paper, k_free), strict=True):
