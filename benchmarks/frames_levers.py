@@ -38,13 +38,8 @@ NAMERS = {"one network (8 hidden)": (8, 1e-3, 1), "one network (16 hidden)": (16
 
 def others_features(key: jax.Array, robot, n: int, camera: str) -> tuple[np.ndarray, ...]:
     """The other agents' episodes as the stage judges them, read from their frames."""
-    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
-    others = [i for i in range(robot.n_agents) if i != robot.saved_agent]
     feats, acts, cols = [], [], []
-    for i, (k, cmd) in enumerate(zip(jax.random.split(key, n), W.commands(rng, n),
-                                     strict=True)):
-        ep, colour = W.episode(robot.with_agent(others[i % len(others)]), "paper", cmd, k,
-                                None)
+    for _, cmd, ep, colour in W.other_episodes(key, robot, "paper", n):
         feats.append(seeing.features(render.frames(ep, camera=camera)))
         acts.append(cmd[0])
         cols.append(colour)

@@ -90,18 +90,17 @@ def table_colour(frame: np.ndarray) -> np.ndarray:
     return colours[np.argmax(counts)]
 
 
-def _hand(moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _hand(moving: np.ndarray) -> np.ndarray:
     """The hand's image position ``[T, 2]`` (x, y as fractions of the width; the lowest
-    moving pixels) and whether it was seen ``[T]``."""
+    moving pixels; zero in a frame where no arm moves)."""
     t_n, h, w = moving.shape
-    hand, seen = np.zeros((t_n, 2)), np.zeros(t_n, bool)
+    hand = np.zeros((t_n, 2))
     for t in range(t_n):
         ys, xs = np.nonzero(moving[t])
         if len(ys) > 3:
             low = ys >= ys.max() - max(2, h // 50)
             hand[t] = xs[low].mean() / w, ys[low].mean() / w
-            seen[t] = True
-    return hand, seen
+    return hand
 
 
 def _track(mask: np.ndarray, xs: np.ndarray, ys: np.ndarray
@@ -131,7 +130,7 @@ def features(frames: Any) -> np.ndarray:
     ys, xs = np.mgrid[0:h, 0:w] / w
     tail = slice(int(t_n * 0.8), t_n)
     count = moving.sum((1, 2)) + 1e-6
-    hand, _ = _hand(moving)
+    hand = _hand(moving)
     rows = []
     for c in range(len(COLOURS)):
         m = lab == c + 1

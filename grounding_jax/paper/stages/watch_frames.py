@@ -65,6 +65,11 @@ class WatchFramesConfig:
                              f"{self.l2}")
 
 
+def host_rng(key: jax.Array) -> np.random.Generator:
+    """A NumPy generator drawn from ``key`` (for the commands' layouts and slots)."""
+    return np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
+
+
 def commands(rng: np.random.Generator, n: int) -> list[tuple[int, int, int]]:
     """``n`` commands (action, layout, slot): the actions in turn, layouts and slots drawn."""
     return [(i % len(scene.ACTIONS), int(rng.integers(len(scene.LAYOUTS))),
@@ -91,7 +96,7 @@ def own_features(key: jax.Array, robot, family: str, config: WatchFramesConfig
     target colours, seconds per episode)."""
     from grounding_jax.sim import render
 
-    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
+    rng = host_rng(key)
     params = None
     if config.start_noise:
         base = robot.free.params if family == "free" else EnvParams()
@@ -129,21 +134,28 @@ def _fit(key: jax.Array, robot, family: str, config: WatchFramesConfig
     return net, accuracy(net, feats, acts, cols)["both"], seconds
 
 
-def _judge(key: jax.Array, robot, family: str, n: int, camera: str) -> dict:
-    """The other agents' episodes named from their frames and from their joint angles."""
-    from grounding_jax.sim import render
-
+def other_episodes(key: jax.Array, robot, family: str, n: int):
+    """Yield ``n`` episodes of the family's other agents (not the robot's own), in turn, on
+    commands drawn from ``key``: (agent, command, episode, target colour index)."""
     n_agents = robot.free.n_agents if family == "free" else robot.n_agents
     saved = robot.free.saved_agent if family == "free" else robot.saved_agent
     others = [i for i in range(n_agents) if i != saved]
     if not others:
-        return {"episodes": 0}
-    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel()[-1])
-    rows, t_frames, t_joints = [], 0.0, 0.0
-    for i, (k, cmd) in enumerate(zip(jax.random.split(key, n), commands(rng, n), strict=True)):
+        return
+    cmds = commands(host_rng(key), n)
+    for i, (k, cmd) in enumerate(zip(jax.random.split(key, n), cmds, strict=True)):
         agent = others[i % len(others)]
         actor = robot.with_free_agent(agent) if family == "free" else robot.with_agent(agent)
         ep, colour = episode(actor, family, cmd, k, None)
+        yield agent, cmd, ep, colour
+
+
+def _judge(key: jax.Array, robot, family: str, n: int, camera: str) -> dict:
+    """The other agents' episodes named from their frames and from their joint angles."""
+    from grounding_jax.sim import render
+
+    rows, t_frames, t_joints = [], 0.0, 0.0
+    for agent, cmd, ep, colour in other_episodes(key, robot, family, n):
         t = time.perf_counter()
         by_frames = robot.watch_frames(render.frames(ep, camera=camera), family=family,
                                        camera=camera)
@@ -154,6 +166,8 @@ def _judge(key: jax.Array, robot, family: str, n: int, camera: str) -> dict:
         truth = (scene.ACTIONS[cmd[0]], seeing.COLOURS[colour])
         rows.append({"agent": agent, "truth": truth, "frames": by_frames,
                      "joints": (res["action"], _target_colour(res, ep))})
+    if not rows:
+        return {"episodes": 0}
 
     def rate(route: str, part: slice) -> float:
         return float(np.mean([r[route][part] == r["truth"][part] for r in rows]))
