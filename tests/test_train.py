@@ -384,6 +384,31 @@ def test_the_watch_frames_stage_saves_a_robot_that_names_rendered_frames(quick):
     assert "## Beyond the paper: naming from the camera" in (quick / "REPORT.md").read_text()
 
 
+def test_the_together_stage_compares_the_orders_on_the_same_seeds(quick):
+    import grounding_jax as gj
+
+    data = json.loads((quick / "metrics.json").read_text())
+    res = data["stages"]["together"]["result"]
+    seq, tog = (res["arms"][a] for a in ("sequence", "together"))
+    rounds, agents = res["config"]["rounds"], res["config"]["agents"]
+    # the TL reads no other module: trained in either order it ends the same, agent by agent
+    assert seq["tl_test_acc"] == tog["tl_test_acc"] and len(seq["tl_test_acc"]) == agents
+    for arm in (seq, tog):
+        assert [len(arm["curves"][m]) for m in ("tl", "al", "an")] == [rounds] * 3
+        assert arm["curves"]["an"][-1]["budget"] == 1.0
+        for action in ("point", "touch", "push"):
+            assert arm["summary"][action]["median"] == pytest.approx(
+                float(np.median(arm["success"][action])))
+    # in sequence the AL starts after the whole TL, together after its first piece
+    assert seq["curves"]["al"][0]["budget"] > tog["curves"]["al"][0]["budget"]
+    assert (quick / "together" / "together.png").stat().st_size > 0
+    robot = gj.load(quick / "together" / "modules")
+    out = robot.perform("point", "red", layout=3)
+    assert out["position"] in ("left", "middle", "right") and len(out["named"]) == 2
+    assert "## Beyond the paper: the modules learning together" in (
+        quick / "REPORT.md").read_text()
+
+
 @pytest.mark.parametrize("argv, field", [
     (["--set", "random_starts.nois=0.1"], "random_starts.nois"),
     (["--set", "random_starts.noise=2"], "noise"),

@@ -137,11 +137,18 @@ class ALHyper:
     actor's range [-1, 1]); 0.0 -- the explored action itself (the paper). At a joint limit
     the explored action has no effect, so the paper's rule can drive the actor's output into
     the limit and saturate it there, where its tanh gradient is too small to come back.
+
+    ``told``: ``None`` (the paper: the actor is told the target's true position) or the
+    units the actor is told instead, per layout, position and the word that names the
+    target, float32 ``[36, 3, 2, 3]`` (word 0 its shape, 1 its colour; e.g. a TL's current
+    estimates, `grounding_jax.learn.together.told_table`): each episode draws one of the two
+    words. The reward still follows the true position.
     """
 
     learner: Any = cacla.CaclaHyper()
     env: EnvParams = EnvParams()
     executed_target: Any = 0.0
+    told: Any = None
 
 
 #: What each of `ALHyper`'s own fields accepts (``validate`` and the sweep runner read
@@ -216,10 +223,15 @@ class _Parts:
         self.length = config.env.episode_length
         self.sampler = config.sampler
 
-    def draw(self, key: jax.Array) -> tuple[Task, jax.Array, jax.Array]:
-        """An episode's key -> (task, reset key, one exploration key per step)."""
+    def draw(self, key: jax.Array, hp: ALHyper) -> tuple[Task, jax.Array, jax.Array]:
+        """An episode's key -> (task, reset key, one exploration key per step); with
+        ``hp.told`` the task carries the units told for one of the target's two words."""
         k_task, k_reset, k_steps = jax.random.split(key, 3)
-        return self.sampler.sample(k_task), k_reset, jax.random.split(k_steps, self.length)
+        task = self.sampler.sample(k_task)
+        if hp.told is not None:  # a key of its own: the other draws stay as without it
+            word = jax.random.bernoulli(jax.random.fold_in(k_task, 2)).astype(jnp.int32)
+            task = task.replace(target_units=hp.told[task.layout, task.position, word])
+        return task, k_reset, jax.random.split(k_steps, self.length)
 
     def learn(self, agent, state, k: jax.Array, lhp, hp: ALHyper):
         """Act, step the env, update the learner (not where the episode has ended).
@@ -275,7 +287,7 @@ def make_episodes(config: ALConfig):
 
     def episode(agent, xs, hp: ALHyper):
         key, plan = xs
-        task, k_reset, step_keys = parts.draw(key)
+        task, k_reset, step_keys = parts.draw(key, hp)
         lhp = lrn.at_episode(hp.learner, plan["phase1"], plan["progress"])
         state = env.reset(k_reset, task, hp.env)
 
@@ -310,7 +322,7 @@ def make_steps(config: ALConfig):
     def run(agent, keys: jax.Array, plan: dict[str, jax.Array], hp: ALHyper):
         _check_learner(config, hp)
         n = keys.shape[0]
-        tasks_, k_resets, step_keys = jax.vmap(parts.draw)(keys)
+        tasks_, k_resets, step_keys = jax.vmap(lambda k: parts.draw(k, hp))(keys)
 
         def task_at(e):
             return jax.tree.map(lambda x: x[e], tasks_)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import typing
 from typing import Any
 
 import jax
@@ -250,6 +251,17 @@ def split_indices(key: jax.Array, n_all: int = tl_data.N_CONFIGS
     return perm[:n_train], perm[n_train:]
 
 
+class _Run(typing.NamedTuple):
+    """One TL's training program for a key and hyperparameters (see `_program`)."""
+
+    state: tuple  # the compact state at the start: pixel weights, U, biases, output layer
+    keys: jax.Array  # one key per epoch
+    epoch: typing.Callable  # (state, key) -> state
+    evaluate: typing.Callable  # state -> ((train acc, test acc, train RMSE, test RMSE), right)
+    params: typing.Callable  # state -> TLParams
+    test: jax.Array  # the test configurations' indices
+
+
 def make_train(config: TLConfig, data: tl_data.TLData | None = None):
     """Build ``train(key, hp) -> (params, metrics)`` over the 216 configurations.
 
@@ -270,10 +282,72 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
         values (``final_train_acc``, ``final_test_acc``, ...).
     """
     data = tl_data.load() if data is None else data
+    setup = _program(config, data)
+    shape_word = jnp.asarray(data.word < len(tl_data.TARGET_WORDS) // 2)
+
+    def train(key: jax.Array, hp: TLHyper) -> tuple[TLParams, dict[str, jax.Array]]:
+        run = setup(key, hp)
+        n_blocks = config.epochs // config.eval_every
+        blocks = run.keys[: n_blocks * config.eval_every].reshape(n_blocks, config.eval_every)
+
+        def block(st, keys):  # eval_every epochs, then one evaluation
+            st = jax.lax.fori_loop(0, keys.shape[0], lambda j, q: run.epoch(q, keys[j]), st)
+            return st, run.evaluate(st)[0]
+
+        state, curves = jax.lax.scan(block, run.state, blocks)
+        state = jax.lax.fori_loop(n_blocks * config.eval_every, config.epochs,
+                                  lambda j, q: run.epoch(q, run.keys[j]), state)
+        final, correct = run.evaluate(state)
+        test_shape = shape_word[run.test]
+        metrics = {
+            "train_acc": curves[0], "test_acc": curves[1], "train_rmse": curves[2],
+            "test_rmse": curves[3], "final_train_acc": final[0], "final_test_acc": final[1],
+            "final_train_rmse": final[2], "final_test_rmse": final[3],
+            # test accuracy on patterns naming a shape / a colour (the latter never needs
+            # the image)
+            "final_test_acc_shape_words": jnp.sum(correct[run.test] & test_shape)
+            / jnp.maximum(jnp.sum(test_shape), 1),
+            "final_test_acc_colour_words": jnp.sum(correct[run.test] & ~test_shape)
+            / jnp.maximum(jnp.sum(~test_shape), 1),
+        }
+        return run.params(state), metrics
+
+    return train
+
+
+def make_rounds(config: TLConfig, data: tl_data.TLData | None = None):
+    """Build ``(start, advance, params)``: one TL trained a few epochs at a time, as
+    `make_train` trains it (the same epochs, keys and updates; no evaluations between).
+
+    ``start(key, hp) -> state``; ``advance(key, hp, state, first, epochs) -> (state, (train
+    acc, test acc))`` runs epochs ``first .. first + epochs - 1`` of ``config.epochs``
+    (``epochs`` static, ``first`` traced); ``params(key, hp, state) -> TLParams``. The key
+    and hyperparameters are the run's own at every call.
+    """
+    setup = _program(config, data)
+
+    def start(key: jax.Array, hp: TLHyper) -> tuple:
+        return setup(key, hp).state
+
+    def advance(key: jax.Array, hp: TLHyper, state: tuple, first: jax.Array, epochs: int):
+        run = setup(key, hp)
+        keys = jax.lax.dynamic_slice_in_dim(run.keys, first, epochs)
+        state = jax.lax.fori_loop(0, epochs, lambda j, q: run.epoch(q, keys[j]), state)
+        return state, run.evaluate(state)[0][:2]
+
+    def params(key: jax.Array, hp: TLHyper, state: tuple) -> TLParams:
+        return setup(key, hp).params(state)
+
+    return start, advance, params
+
+
+# the online step, its compact state and the final weights share one closure
+def _program(config: TLConfig, data: tl_data.TLData | None):  # noqa: C901
+    """``setup(key, hp) -> _Run``: the training program of `make_train` for one key."""
+    data = tl_data.load() if data is None else data
     bitmaps = jnp.asarray(data.bitmaps)
     symbols_raw = jnp.asarray(data.symbols)
     labels = jnp.asarray(data.labels)
-    shape_word = jnp.asarray(data.word < len(tl_data.TARGET_WORDS) // 2)
     targets = jax.nn.one_hot(labels, N_OUT)
     n_all = labels.shape[0]
     n_train = int(round(2 / 3 * n_all))
@@ -287,7 +361,7 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
         pix_idx = jnp.asarray(order, jnp.int32)  # rows of the 1s first, then 0-rows (val 0)
         pix_val = jnp.asarray(np.take_along_axis(data.bitmaps, order, axis=1))
 
-    def train(key: jax.Array, hp: TLHyper) -> tuple[TLParams, dict[str, jax.Array]]:
+    def setup(key: jax.Array, hp: TLHyper) -> _Run:
         _, k_noise, k_init, k_epochs = jax.random.split(key, 4)  # the first: split_indices
         tr, te = split_indices(key, n_all)
         on = jnp.asarray(hp.image_scale, jnp.float32)  # the value of an "on" pixel
@@ -349,36 +423,16 @@ def make_train(config: TLConfig, data: tl_data.TLData | None = None):
             order = tr[jax.random.permutation(k_order, n_train)]
             return jax.lax.scan(sgd, st, (order, jax.random.split(k_flip, n_train)))[0]
 
-        def block(st, keys):  # eval_every epochs, then one evaluation
-            st = jax.lax.fori_loop(0, keys.shape[0], lambda j, q: epoch(q, keys[j]), st)
-            return st, evaluate(st)[0]
+        def to_params(st) -> TLParams:
+            wp, u, b1, w2, b2 = st
+            w_sym = w_sym0 + rep_mask[:, None, None] * u[None]  # every used replica got U
+            return TLParams(w1=jnp.concatenate([wp, w_sym.reshape(-1, w_sym.shape[-1])]),
+                            b1=b1, w2=w2, b2=b2)
 
-        keys = jax.random.split(k_epochs, config.epochs)
-        n_blocks = config.epochs // config.eval_every
-        blocks = keys[: n_blocks * config.eval_every].reshape(n_blocks, config.eval_every)
-        state, curves = jax.lax.scan(block, state, blocks)
-        state = jax.lax.fori_loop(n_blocks * config.eval_every, config.epochs,
-                                  lambda j, q: epoch(q, keys[j]), state)
-        final, correct = evaluate(state)
-        test_shape = shape_word[te]
-        wp, u, b1, w2, b2 = state
-        w_sym = w_sym0 + rep_mask[:, None, None] * u[None]  # every used replica got U
-        params = TLParams(w1=jnp.concatenate([wp, w_sym.reshape(-1, w_sym.shape[-1])]),
-                          b1=b1, w2=w2, b2=b2)
-        metrics = {
-            "train_acc": curves[0], "test_acc": curves[1], "train_rmse": curves[2],
-            "test_rmse": curves[3], "final_train_acc": final[0], "final_test_acc": final[1],
-            "final_train_rmse": final[2], "final_test_rmse": final[3],
-            # test accuracy on patterns naming a shape / a colour (the latter never needs
-            # the image)
-            "final_test_acc_shape_words": jnp.sum(correct[te] & test_shape)
-            / jnp.maximum(jnp.sum(test_shape), 1),
-            "final_test_acc_colour_words": jnp.sum(correct[te] & ~test_shape)
-            / jnp.maximum(jnp.sum(~test_shape), 1),
-        }
-        return params, metrics
+        return _Run(state=state, keys=jax.random.split(k_epochs, config.epochs), epoch=epoch,
+                    evaluate=evaluate, params=to_params, test=te)
 
-    return train
+    return setup
 
 
 def localize(params: TLParams, bitmap: jax.Array, symbols: jax.Array, hp: TLHyper

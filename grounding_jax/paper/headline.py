@@ -93,6 +93,13 @@ def table(metrics: dict, perform_check: dict | None = None) -> str:
                           f"{_pct(r['joints_both'])})" for f, r in wf.items())
         rows.append(f"| Beyond: names other agents' acts from rendered frames only (goal 90%), "
                     f"action and target right | proposed | {cells} |")
+    if "together" in stages:
+        arms = stages["together"]["result"]["arms"]
+        cells = "; ".join(f"{arm} {_trio({a: arms[arm]['summary'][a]['median'] for a in ACTIONS})}"
+                          f", named {_pct(arms[arm]['summary']['named']['median'])}"
+                          for arm in ("sequence", "together"))
+        rows.append(f"| Beyond: the modules trained together vs one after another, same seeds "
+                    f"and budget, point / touch / push | future work | {cells} |")
     if perform_check is not None:
         p = perform_check
         rows.append(

@@ -162,6 +162,7 @@ class Task:
     placement: jax.Array | None = None
     target_xy: jax.Array | None = None
     velocity: jax.Array | None = None
+    target_units: jax.Array | None = None
 
 
 @struct.dataclass
@@ -293,7 +294,7 @@ def _traced_faults(task: Task, params: EnvParams, n_actions: int) -> jax.Array:
                      ("layout", len(scene.LAYOUTS))):
         v = jnp.asarray(getattr(task, field))
         bad |= jnp.any((v < 0) | (v >= n))
-    for field in ("placement", "target_xy", "velocity"):
+    for field in ("placement", "target_xy", "velocity", "target_units"):
         v = getattr(task, field)
         if v is not None:
             bad |= ~jnp.all(jnp.isfinite(v))
@@ -319,12 +320,13 @@ def _check_task(task: Task, n_actions: int = tasks.N_ACTIONS) -> None:
             task.position) == 0
         reach = (int(task.position),) if moving else (0, 1, 2)
         free.check(task.placement, "task.placement", reach=reach)
-    for field in ("target_xy", "velocity"):
+    for field, n in (("target_xy", 2), ("velocity", 2), ("target_units", tasks.N_POSITIONS)):
         v = getattr(task, field)
         if concrete(v):
             arr = np.asarray(v)
-            if arr.shape[-1:] != (2,) or not np.all(np.isfinite(arr)):
-                raise ValueError(f"task.{field}: expected finite (x, y) pairs, got {arr.tolist()}")
+            if arr.shape[-1:] != (n,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"task.{field}: expected {n} finite numbers per task, got "
+                                 f"{arr.tolist()}")
 
 
 # ------------------------------------------------------------------------- joint scaling
@@ -397,7 +399,12 @@ class Env:
         coordinates (the task's ``target_xy``, else where the target is meant to be), then,
         with ``hand_obs``, the palm's offset to that point (``obs_target`` + ``obs_hand``)."""
         if self.tasks.target_obs == "position":
+            if task.target_units is not None:
+                return jnp.asarray(task.target_units, jnp.float32)
             return jax.nn.one_hot(task.position, tasks.N_POSITIONS)
+        if task.target_units is not None:
+            raise ValueError(f"task.target_units: only the 'position' target observation reads "
+                             f"it; this task set's is {self.tasks.target_obs!r} (use target_xy)")
         target = object_start[self._slot_shape[task.layout, task.position]]
         xy = target[:2] if task.target_xy is None else task.target_xy
         units = free.target_units(xy, self.tasks.target_obs)
