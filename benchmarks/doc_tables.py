@@ -19,7 +19,8 @@ HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 
-#: table name -> (result file, benchmark module whose table() renders it)
+#: table name -> (result file, benchmark module whose table() renders it[, the function's
+#: name when it is not ``table``)
 TABLES = {
     "faults": ("results/benchmarks/faults.json", "faults"),
     "env_throughput": ("results/benchmarks/env_throughput.json", "env_throughput"),
@@ -29,6 +30,15 @@ TABLES = {
     "compile_options": ("results/benchmarks/compile_options.json", "compile_options"),
     "physics_options": ("results/benchmarks/physics_options.json", "physics_options"),
     "frames_levers": ("results/tuning/frames_levers.json", "frames_levers"),
+    "together_seeds": ("results/tuning/together_seeds.json", "together_seeds"),
+    "together_seeds_paper_tl": ("results/tuning/together_seeds_paper_tl.json",
+                                "together_seeds"),
+    "together_seeds_slow_tl": ("results/tuning/together_seeds_slow_tl.json",
+                               "together_seeds"),
+    "together_tl_curves": ("results/tuning/together_tl_curves.json", "together_seeds",
+                           "curves_table"),
+    "together_report": ("results/paper/together/together.json", "together_seeds",
+                        "stage_table"),
 }
 BLOCK = re.compile(r"(<!-- table: (\w+) -->\n).*?(<!-- end table -->)", re.S)
 
@@ -37,8 +47,9 @@ def render(name: str) -> str:
     """The table ``name`` from its result file."""
     import importlib
 
-    path, module = TABLES[name]
-    return importlib.import_module(module).table(json.loads((ROOT / path).read_text()))
+    path, module, *function = TABLES[name]
+    render_it = getattr(importlib.import_module(module), (function or ["table"])[0])
+    return render_it(json.loads((ROOT / path).read_text()))
 
 
 def rewrite(text: str, source: str) -> str:

@@ -106,7 +106,10 @@ def index() -> str:
     substeps = sorted(TUNING.glob("substeps_*.json"))
     variants = sorted(TUNING.glob("al_variants_*.json"))
     frames = sorted(TUNING.glob("frames_levers*.json"))
+    together = sorted(TUNING.glob("together_seeds*.json"))
+    tl_curves = sorted(TUNING.glob("together_tl_curves.json"))
     known = set(free) | set(tl_xy) | set(substeps) | set(variants) | set(frames)
+    known |= set(together) | set(tl_curves)
     other = sorted(p.name for p in TUNING.glob("*.json") if p not in known)
     lines = [
         "# Tuning outputs",
@@ -153,6 +156,19 @@ def index() -> str:
                   "(`docs/beyond.md`). The namer is fitted on the saved robot's own episodes and "
                   "judged on the run's other agents' episodes, rendered at "
                   "`grounding_jax.frames`' defaults.", "", *_frames_rows(frames)]
+    if together:
+        import together_seeds
+
+        lines += ["", f"## The modules learning together, more keys ({len(together)} runs)", "",
+                  "Written by `benchmarks/together_seeds.py`; they fed *The modules learning "
+                  "together* (`docs/beyond.md`): the `together` stage's paper profile again "
+                  "with other keys, every key's agents pooled.", ""]
+        for p in together:
+            lines += [f"`{p.name}`:", "", together_seeds.table(json.loads(p.read_text())), ""]
+        for p in tl_curves:  # how fast each of the stage's TL settings finds its answers
+            lines += [f"`{p.name}`:", "",
+                      together_seeds.curves_table(json.loads(p.read_text())), ""]
+        lines.pop()
     if other:
         lines += ["", "## Other files", "", *(f"- `{n}`" for n in other)]
     return "\n".join(lines) + "\n"

@@ -3,6 +3,8 @@ stage's config and order (the stage itself runs in test_train's quick run)."""
 
 from __future__ import annotations
 
+import pathlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -113,3 +115,22 @@ def test_both_orders_spend_the_same_budget():
         seq, tog = T.order("sequence", rounds), T.order("together", rounds)
         assert sorted(seq) == sorted(tog) and len(seq) == 3 * rounds
         assert seq[:rounds] == ["tl"] * rounds and tog[:3] == ["tl", "al", "an"]
+
+
+def test_the_seeds_benchmark_pools_agents_and_counts_who_did_better(monkeypatch):
+    monkeypatch.syspath_prepend(str(pathlib.Path(__file__).parent.parent / "benchmarks"))
+    import together_seeds
+
+    def arm(touch):
+        return {"tl_test_acc": [0.9, 0.9], "named": [1.0, 1.0],
+                "success": {"point": [1.0, 1.0], "touch": touch, "push": [0.5, 0.5]}}
+
+    runs = [{"arms": {"sequence": arm([0.2, 0.5]), "together": arm([0.4, 0.5])}},
+            {"arms": {"sequence": arm([0.6, 0.1]), "together": arm([0.3, 0.1])}}]
+    got = together_seeds.pooled(runs)
+    assert got["touch"]["agents"] == 4
+    assert (got["touch"]["together_better"], got["touch"]["together_worse"]) == (1, 1)
+    assert got["touch"]["sequence"]["median"] == pytest.approx(0.35)
+    assert got["push"]["together_better"] == got["push"]["together_worse"] == 0
+    text = together_seeds.table({"keys": [1, 2], "changes": {"tl": "slow"}, "pooled": got})
+    assert "tl=slow" in text and "| touch | 35% (10-60%) | 35% (10-50%) | 1 / 1 |" in text

@@ -28,6 +28,10 @@ from grounding_jax.sim.env import EnvConfig, Task
 TOLD = ("winner", "output")
 #: the TL the together stage trains: the shipped hidden size, replication and input balance
 TL_HYPER = tl.TLHyper(hidden=50, replication=20, **tl.TUNED)
+#: the TLs a together run can train: the shipped one, the paper's (lr 0.1, every input at 1),
+#: or the shipped one at a tenth of its learning rate (wrong for longer while the AL learns)
+TL_HYPERS = {"shipped": TL_HYPER, "paper": tl.TLHyper(hidden=50, replication=20),
+             "slow": TL_HYPER.replace(lr=TL_HYPER.lr / 10)}
 
 
 def told_index(data: tl_data.TLData | None = None) -> np.ndarray:
@@ -73,7 +77,7 @@ def tl_layers(params: tl.TLParams, config: tl.TLConfig, hp: tl.TLHyper = TL_HYPE
     """A TL's (hidden activations ``[216, H]``, outputs ``[216, 3]``) for every
     configuration; batched parameters give a leading agent axis."""
     run = _inputs(config)
-    if params.b2.ndim == 1:
+    if params.b2.ndim == 1:  # one TL
         return run(params, hp)
     return jax.vmap(run, in_axes=(0, None))(params, hp)
 

@@ -52,7 +52,7 @@ class TogetherConfig:
     budgets (TL epochs, AL episodes of each phase, AN training configurations, each run with
     every action), the AN's test configurations, what the AL is told of the TL's estimate
     (`grounding_jax.learn.together.TOLD`), the layouts of the final judge and the steps of
-    the AN's sequences."""
+    the AN's sequences, and which TL (`grounding_jax.learn.together.TL_HYPERS`)."""
 
     agents: int = 2
     rounds: int = 2
@@ -64,6 +64,7 @@ class TogetherConfig:
     told: str = "winner"
     layouts: str = "shapes"
     steps: int = 100
+    tl: str = "shipped"
 
     def __post_init__(self) -> None:
         for name, low in (("agents", 1), ("rounds", 1), ("tl_epochs", 1), ("an_configs", 1),
@@ -83,6 +84,8 @@ class TogetherConfig:
             raise ValueError(f"told: {self.told!r}; accepted values: {tg.TOLD}")
         if self.layouts not in LAYOUTS:
             raise ValueError(f"layouts: {self.layouts!r}; accepted values: {list(LAYOUTS)}")
+        if self.tl not in tg.TL_HYPERS:
+            raise ValueError(f"tl: {self.tl!r}; accepted values: {list(tg.TL_HYPERS)}")
 
     @property
     def episodes(self) -> int:
@@ -127,7 +130,8 @@ class _Modules:
         start, advance, self._tl_params = tl.make_rounds(self.tl_config)
         self._tl_advance = jax.jit(jax.vmap(advance, in_axes=(0, None, 0, None, None)),
                                    static_argnums=4)
-        self.tl_state = jax.vmap(start, in_axes=(0, None))(self.k_tl, tg.TL_HYPER)
+        self.tl_hp = tg.TL_HYPERS[config.tl]
+        self.tl_state = jax.vmap(start, in_axes=(0, None))(self.k_tl, self.tl_hp)
         self.tl_done = 0
         self.al_config = al.ALConfig(env=env_config, phase1_episodes=config.phase1_episodes,
                                      phase2_episodes=config.phase2_episodes)
@@ -152,9 +156,9 @@ class _Modules:
         return self.hp.replace(told=told)
 
     def tl_layers(self) -> tuple[jax.Array, jax.Array]:
-        params = jax.vmap(self._tl_params, in_axes=(0, None, 0))(self.k_tl, tg.TL_HYPER,
+        params = jax.vmap(self._tl_params, in_axes=(0, None, 0))(self.k_tl, self.tl_hp,
                                                                  self.tl_state)
-        return tg.tl_layers(params, self.tl_config)
+        return tg.tl_layers(params, self.tl_config, self.tl_hp)
 
     def told(self) -> jax.Array:
         return tg.told_table(self.tl_layers()[1], self.config.told)
@@ -162,7 +166,7 @@ class _Modules:
     def step_tl(self) -> float:
         """One piece of the TL's epochs; returns the median agent's test accuracy."""
         piece = self.config.tl_epochs // self.config.rounds
-        self.tl_state, (_, test) = self._tl_advance(self.k_tl, tg.TL_HYPER, self.tl_state,
+        self.tl_state, (_, test) = self._tl_advance(self.k_tl, self.tl_hp, self.tl_state,
                                                     self.tl_done, piece)
         self.tl_done += piece
         return jax.block_until_ready(test)
@@ -214,8 +218,8 @@ class _Modules:
         from grounding_jax.robot import trained
 
         pick = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
-        params = self._tl_params(self.k_tl[i], tg.TL_HYPER, pick(self.tl_state))
-        trained.save(directory, params, tg.TL_HYPER, pick(self.al_state["agent"]),
+        params = self._tl_params(self.k_tl[i], self.tl_hp, pick(self.tl_state))
+        trained.save(directory, params, self.tl_hp, pick(self.al_state["agent"]),
                      self.al_config.learner, self.nets[i],
                      esn.ESNConfig(task_set=self.env_config.task_set), self.env_config,
                      extra=extra)
@@ -334,14 +338,24 @@ def report(res: dict, config: TogetherConfig) -> str:
     """The stage's REPORT section: both arms side by side, the figure and the answer."""
     c = res["config"]
     lines = [f"{len(res['arms']['sequence']['tl_test_acc'])} agents, each its own TL "
-             f"({c['tl_epochs']} epochs), AL ({c['phase1_episodes']} + {c['phase2_episodes']} "
-             f"episodes) and AN ({c['an_configs']} training configurations x 3 actions), "
+             f"({c.get('tl', 'shipped')} settings, {c['tl_epochs']} epochs), AL "
+             f"({c['phase1_episodes']} + {c['phase2_episodes']} episodes) and AN "
+             f"({c['an_configs']} training configurations x 3 actions), "
              f"every budget in {c['rounds']} pieces; the AL told its TL's "
              f"{'winning position' if c['told'] == 'winner' else 'outputs'}. Median agent "
              "(min-max); success told the TL's estimate for both words of each target "
              f"({c['layouts']} layouts); named: {c['an_test_configs']} test configurations x "
              "3 actions.", "",
-             "| modules trained | TL test | point | touch | push | named right | training |",
+             *arms_table(res)]
+    lines += ["", "![learning curves](together/together.png)", "", answer(res), "",
+              f"The median agent trained together (agent {res['saved_agent']}) is saved as a "
+              "robot at `together/modules` (`grounding_jax.load`, then `perform`)."]
+    return "\n".join(lines)
+
+
+def arms_table(res: dict) -> list[str]:
+    """The two arms side by side, a Markdown table's lines."""
+    lines = ["| modules trained | TL test | point | touch | push | named right | training |",
              "|---|---|---|---|---|---|---|"]
     for arm in ARMS:
         s = res["arms"][arm]["summary"]
@@ -349,10 +363,7 @@ def report(res: dict, config: TogetherConfig) -> str:
                  for k in ("tl_test_acc", *ACTIONS, "named")]
         lines.append(f"| {'one after another (the paper)' if arm == 'sequence' else 'together'}"
                      f" | {' | '.join(cells)} | {res['arms'][arm]['train_s']:.0f} s |")
-    lines += ["", "![learning curves](together/together.png)", "", answer(res), "",
-              f"The median agent trained together (agent {res['saved_agent']}) is saved as a "
-              "robot at `together/modules` (`grounding_jax.load`, then `perform`)."]
-    return "\n".join(lines)
+    return lines
 
 
 def answer(res: dict) -> str:
