@@ -163,13 +163,13 @@ class _Modules:
     def told(self) -> jax.Array:
         return tg.told_table(self.tl_layers()[1], self.config.told)
 
-    def step_tl(self) -> float:
-        """One piece of the TL's epochs; returns the median agent's test accuracy."""
+    def step_tl(self) -> None:
+        """One piece of the TL's epochs."""
         piece = self.config.tl_epochs // self.config.rounds
-        self.tl_state, (_, test) = self._tl_advance(self.k_tl, self.tl_hp, self.tl_state,
-                                                    self.tl_done, piece)
+        self.tl_state, _ = self._tl_advance(self.k_tl, self.tl_hp, self.tl_state,
+                                            self.tl_done, piece)
         self.tl_done += piece
-        return jax.block_until_ready(test)
+        jax.block_until_ready(self.tl_state)
 
     def step_al(self) -> None:
         """One piece of the AL's episodes, told the TL's current estimate."""
