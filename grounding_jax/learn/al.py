@@ -223,12 +223,14 @@ class _Parts:
         self.length = config.env.episode_length
         self.sampler = config.sampler
 
-    def draw(self, key: jax.Array, hp: ALHyper) -> tuple[Task, jax.Array, jax.Array]:
+    def draw(self, key: jax.Array, hp: ALHyper | None = None
+             ) -> tuple[Task, jax.Array, jax.Array]:
         """An episode's key -> (task, reset key, one exploration key per step); with
         ``hp.told`` the task carries the units told for one of the target's two words."""
         k_task, k_reset, k_steps = jax.random.split(key, 3)
         task = self.sampler.sample(k_task)
-        if hp.told is not None:  # a key of its own: the other draws stay as without it
+        # a key of its own: the other draws stay as without it
+        if hp is not None and hp.told is not None:
             word = jax.random.bernoulli(jax.random.fold_in(k_task, 2)).astype(jnp.int32)
             task = task.replace(target_units=hp.told[task.layout, task.position, word])
         return task, k_reset, jax.random.split(k_steps, self.length)
