@@ -97,6 +97,14 @@ def test_the_tl_trained_in_rounds_is_the_tl_trained_at_once():
     assert float(test) == pytest.approx(float(metrics["final_test_acc"]))
 
 
+@pytest.mark.parametrize("told", [np.zeros((36, 3, 3)), np.zeros((36, 2, 2, 3)),
+                                  np.full((36, 3, 2, 3), np.nan)])
+def test_a_told_table_of_another_shape_or_not_finite_is_named(told):
+    with pytest.raises(ValueError, match=r"told: .*\[\.\.\., 36, 3, 2, 3\]"):
+        al.validate(al.ALHyper(told=told))
+    assert al.validate(al.ALHyper(told=np.zeros((2, 36, 3, 2, 3)))).told.shape[0] == 2
+
+
 @pytest.mark.parametrize("changes, needle", [
     ({"rounds": 3}, "tl_epochs: 40 does not split"),
     ({"phase2_episodes": 31}, "phase1_episodes"),

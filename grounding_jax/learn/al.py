@@ -27,7 +27,7 @@ from flax import struct
 from grounding_jax.core import trees, xla
 from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
 from grounding_jax.learn import cacla, learners, on_env
-from grounding_jax.sim import rollout, sampler, tasks
+from grounding_jax.sim import rollout, sampler, scene, tasks
 from grounding_jax.sim.env import (
     DEFAULT_PARAMS,
     Env,
@@ -183,7 +183,26 @@ def validate(hp: ALHyper) -> ALHyper:
     check_rules(hp.learner, learners.for_hyper(hp.learner).hyper_rules)
     hp.env.validate()
     check_rules(hp, HYPER_RULES)
+    _check_told(hp.told)
     return hp
+
+
+#: the trailing shape of `ALHyper.told`: layouts, positions, words, units
+TOLD_SHAPE = (len(scene.LAYOUTS), len(scene.POSITIONS), 2, 3)
+
+
+def _check_told(told: Any) -> None:
+    """ValueError naming ``told`` unless it is None or finite numbers ``[..., *TOLD_SHAPE]``
+    (a traced table's shape is checked, its values where they are concrete)."""
+    if told is None:
+        return
+    traced = isinstance(told, jax.core.Tracer)
+    shape, dtype = tuple(jnp.shape(told)), jnp.result_type(told)
+    if len(shape) < 4 or shape[-4:] != TOLD_SHAPE or not jnp.issubdtype(dtype, jnp.number) \
+            or not (traced or np.isfinite(np.asarray(told)).all()):
+        raise ValueError(f"told: got {dtype} of shape {shape}; accepted: None or finite "
+                         f"numbers of shape [..., {', '.join(map(str, TOLD_SHAPE))}] (layouts, "
+                         "positions, words, units)")
 
 
 def _check_learner(config: ALConfig, hp: ALHyper) -> learners.Learner:
@@ -231,6 +250,7 @@ class _Parts:
         task = self.sampler.sample(k_task)
         # a key of its own: the other draws stay as without it
         if hp is not None and hp.told is not None:
+            _check_told(hp.told)
             word = jax.random.bernoulli(jax.random.fold_in(k_task, 2)).astype(jnp.int32)
             task = task.replace(target_units=hp.told[task.layout, task.position, word])
         return task, k_reset, jax.random.split(k_steps, self.length)
