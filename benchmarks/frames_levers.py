@@ -1,10 +1,12 @@
-"""The levers of naming from frames, measured: camera, the starts of the robot's own episodes,
-the namer's size and its ensemble.
+"""The levers of naming from frames, measured: camera (one or both), the starts of the robot's
+own episodes, the namer's size and its ensemble.
 
 The paper family's saved robot renders its own episodes (the ``watch_frames`` stage's
 `own_features`), the run's other agents' episodes are rendered at `grounding_jax.frames`'
 size, every step, and each variant of the namer is fitted on the first and judged on the
-second (action and target named right). Writes ``results/tuning/frames_levers.json``.
+second (action and target named right). Each episode is rendered from both cameras once;
+a single camera's features are their half of the joined ones (`seeing.features` reads each
+view alone). Writes ``results/tuning/frames_levers.json``.
 
 Usage:  python benchmarks/frames_levers.py [--modules results/paper/modules] [--key 31]
         [--own 108] [--others 63]
@@ -40,10 +42,22 @@ def others_features(key: jax.Array, robot, n: int, camera: str) -> tuple[np.ndar
     """The other agents' episodes as the stage judges them, read from their frames."""
     feats, acts, cols = [], [], []
     for _, cmd, ep, colour in W.other_episodes(key, robot, "paper", n):
-        feats.append(seeing.features(render.frames(ep, camera=camera)))
+        feats.append(seeing.features(render.frames(ep, camera=camera), camera))
         acts.append(cmd[0])
         cols.append(colour)
     return np.stack(feats), np.asarray(acts), np.asarray(cols)
+
+
+def view(data: tuple[np.ndarray, ...], camera: str) -> tuple[np.ndarray, ...]:
+    """(features, actions, colours) of frames of both cameras, cut to ``camera``'s view
+    (``"both"``: all; ``"observer"`` the first half of each object's features, ``"eye"`` the
+    second) -- what `seeing.features` returns for that camera's frames alone."""
+    feats, *rest = data
+    n = seeing.N_FEATURES
+    if feats.shape[-1] == n:
+        return data
+    return (feats[..., {"observer": slice(0, n), "eye": slice(n, None),
+                        "both": slice(None)}[camera]], *rest)
 
 
 def table(result: dict) -> str:
@@ -74,25 +88,30 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     robot = trained.load(args.modules)
     k_own, k_others, k_fit = jax.random.split(jax.random.key(args.key), 3)
-    base = W.WatchFramesConfig(own_episodes=args.own, width=240, every=2)
-    sets = {"observer": base, "observer, own starts within ±0.3":
-            dataclasses.replace(base, start_noise=0.3),
-            "eye": dataclasses.replace(base, camera="eye")}
-    rows, seen = [], {}
-    for name, cfg in sets.items():
+    base = W.WatchFramesConfig(own_episodes=args.own, width=240, every=2, camera="both")
+    # "both" is rendered once; "observer" and "eye" read their own view of the same frames
+    sets = {"observer": (base, "observer"), "observer, own starts within ±0.3":
+            (dataclasses.replace(base, start_noise=0.3, camera="observer"), "observer"),
+            "eye": (base, "eye"), "both cameras": (base, "both")}
+    t = time.perf_counter()
+    seen = others_features(k_others, robot, args.others, "both")
+    print(f"the other agents' episodes rendered and read in {time.perf_counter() - t:.0f} s")
+    rows, own_seen = [], {}
+    for name, (cfg, camera) in sets.items():
         t = time.perf_counter()
-        own = W.own_features(k_own, robot, "paper", cfg)[:3]
-        if cfg.camera not in seen:
-            seen[cfg.camera] = others_features(k_others, robot, args.others, cfg.camera)
+        if cfg not in own_seen:
+            own_seen[cfg] = W.own_features(k_own, robot, "paper", cfg)[:3]
+        own, others = view(own_seen[cfg], camera), view(seen, camera)
         print(f"{name}: episodes rendered and read in {time.perf_counter() - t:.0f} s")
-        namers = NAMERS if name == "observer" else {"ensemble of 7 (shipped)": (8, 1e-3, 7)}
+        namers = NAMERS if name in ("observer", "both cameras") else {
+            "ensemble of 7 (shipped)": (8, 1e-3, 7)}
         for label, (hidden, l2, members) in namers.items():
             for draw in range(3):  # the fit's own draw: how much it alone moves the result
                 net = seeing.fit(jax.random.fold_in(k_fit, draw), *own, len(scene.ACTIONS),
-                                 hidden, l2, camera=cfg.camera, members=members)
+                                 hidden, l2, camera=camera, members=members)
                 rows.append({"episodes": name, "namer": label, "draw": draw,
                              "own": W.accuracy(net, *own),
-                             "others": W.accuracy(net, *seen[cfg.camera])})
+                             "others": W.accuracy(net, *others)})
                 print(rows[-1])
     atomic_write_text(pathlib.Path(args.out), json.dumps(
         {"key": args.key, "modules": str(pathlib.Path(args.modules).relative_to(ROOT))

@@ -19,11 +19,11 @@ import sys
 import time
 
 from grounding_jax.sim import tasks
+from grounding_jax.sim.render import CAMERAS
 
 #: the committed modules of the paper profile, in a checkout
 DEFAULT_MODULES = pathlib.Path(__file__).resolve().parents[1] / "results" / "paper" / "modules"
 PLACEMENTS = ("slots", "random")
-CAMERAS = ("observer", "eye")
 
 
 class ShowError(ValueError):
@@ -128,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--strip", default=None, help="also write four frames side by side (.png)")
     ap.add_argument("--viewer", action="store_true", help="play it in MuJoCo's viewer")
     ap.add_argument("--camera", default="observer",
-                    help=f"one of {CAMERAS}: third person, or the robot's eye (arm drawn)")
+                    help=f"one of {CAMERAS}: third person, the robot's eye (arm drawn), or "
+                    "the two side by side")
     ap.add_argument("--width", type=int, default=480)
     ap.add_argument("--height", type=int, default=320)
     ap.add_argument("--fps", type=int, default=25)

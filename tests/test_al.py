@@ -118,7 +118,8 @@ def test_auto_reset_equals_lockstep_bit_for_bit():
     # three agents whose episodes end at different steps (wrong moves end some early), so
     # the auto-reset loop really restarts slots mid-batch
     keys = jax.random.split(jax.random.key(2), 3)
-    hp = al.hyper(wrong_move_threshold=0.002)
+    # a start curriculum too: each loop starts each episode with its own start noise
+    hp = al.hyper(wrong_move_threshold=0.002, start_noise=0.3, start_ramp=0.5)
     runs = {loop: jax.jit(jax.vmap(al.make_train(SMALL, loop), in_axes=(0, None)))(keys, hp)
             for loop in al.LOOPS}
     (a1, m1), (a2, m2) = runs["auto_reset"], runs["lockstep"]
@@ -128,6 +129,27 @@ def test_auto_reset_equals_lockstep_bit_for_bit():
         np.testing.assert_array_equal(np.asarray(m1[k]), np.asarray(m2[k]), err_msg=k)
     for a, b in zip(jax.tree.leaves(a1), jax.tree.leaves(a2), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_start_curriculum_grows_the_start_range_from_home(small_train):
+    hp = al.hyper(start_noise=0.4, start_ramp=0.5)
+    grown = [float(al.env_at(hp, jnp.float32(p)).start_noise) for p in (0.0, 0.25, 0.5, 0.9)]
+    assert grown == pytest.approx([0.0, 0.2, 0.4, 0.4])
+    assert float(al.env_at(hp.replace(start_ramp=0.0), jnp.float32(0.0)).start_noise) == \
+        pytest.approx(0.4)
+    key = jax.random.key(4)
+    _, home = small_train(key, al.hyper(start_noise=0.0))
+    _, ramp = small_train(key, hp)
+    _, wide = small_train(key, hp.replace(start_ramp=0.0))
+    first = {k: v[0] for k, v in home.items()}
+    # the first episode (progress 0) starts at home; later ones, and every one without the
+    # ramp, start elsewhere
+    for k in first:
+        np.testing.assert_array_equal(np.asarray(ramp[k][0]), np.asarray(first[k]), err_msg=k)
+    assert not np.array_equal(np.asarray(wide["return"][0]), np.asarray(first["return"]))
+    assert not np.array_equal(np.asarray(ramp["return"]), np.asarray(home["return"]))
+    with pytest.raises(ValueError, match="start_ramp"):
+        al.validate(al.hyper(start_ramp=1.5))
 
 
 def test_decay_reaches_the_final_value_at_the_last_episode():

@@ -63,6 +63,26 @@ def test_features_say_where_the_hand_went_and_what_moved():
     np.testing.assert_allclose(big[:, F["hand_dx_end"]], still[:, F["hand_dx_end"]], atol=0.03)
 
 
+def test_both_cameras_read_each_view_alone_and_join_their_features():
+    left, right = _scene((22, 13)), _scene((22, 47), red_shift=6)
+    both = seeing.features(np.concatenate([left, right], 2), "both")
+    assert both.shape == (3, seeing.n_features("both")) == (3, 2 * seeing.N_FEATURES)
+    np.testing.assert_array_equal(both, np.concatenate(
+        [seeing.features(left), seeing.features(right)], -1))
+    with pytest.raises(ValueError, match="even width"):
+        seeing.features(np.concatenate([left, right[:, :, 1:]], 2), "both")
+    with pytest.raises(ValueError, match="camera: unknown value 'side'"):
+        seeing.features(left, "side")
+    # a namer of the joined features restores from its checkpoint's sizes
+    net = seeing.like(4, 3, "both", members=2)
+    assert net.w1.shape == (2, 2 * seeing.N_FEATURES, 4)
+    back = seeing.namers_like(seeing.namers_config({"paper": net}))["paper"]
+    assert back.camera == "both" and back.w1.shape == net.w1.shape
+    with pytest.raises(ValueError, match=r"feats: shape .*\[N, 3, 30\]"):
+        seeing.fit(jax.random.key(0), np.zeros((4, 3, seeing.N_FEATURES)), np.zeros(4, int),
+                   np.zeros(4, int), 3, camera="both")
+
+
 def test_the_fitted_namer_separates_what_it_was_shown():
     rng = np.random.default_rng(0)
     action, target = rng.integers(3, size=60), rng.integers(3, size=60)
@@ -120,6 +140,19 @@ def test_a_robot_saved_with_its_namer_loads_and_names_frames_alike(saved):
     assert back.watch_frames(np.stack([frames, frames])) == [want, want]
     with pytest.raises(ValueError, match="no frames namer"):
         robot.watch_frames(frames)  # the robot as train.py saved it holds none
+
+
+def test_frames_of_both_cameras_are_the_two_views_side_by_side(saved):
+    import grounding_jax as gj
+
+    ep = saved[0].perform("touch", "green", layout=5)
+    both = gj.frames(ep, camera="both", width=60, height=40, every=10)
+    assert both.shape == (10, 40, 120, 3)
+    np.testing.assert_array_equal(both[:, :, :60], gj.frames(ep, width=60, height=40, every=10))
+    np.testing.assert_array_equal(both[:, :, 60:], gj.frames(ep, camera="eye", width=60,
+                                                             height=40, every=10))
+    with pytest.raises(ValueError, match="camera: unknown value 'top'.*'both'"):
+        gj.frames(ep, camera="top")
 
 
 def test_a_damaged_frames_entry_is_refused_on_load(saved, tmp_path):

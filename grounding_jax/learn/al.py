@@ -25,7 +25,14 @@ import numpy as np
 from flax import struct
 
 from grounding_jax.core import trees, xla
-from grounding_jax.core.checks import FLAG, Rule, check_config, check_rules, integer_at_least
+from grounding_jax.core.checks import (
+    FLAG,
+    UNIT_CLOSED,
+    Rule,
+    check_config,
+    check_rules,
+    integer_at_least,
+)
 from grounding_jax.learn import cacla, learners, on_env
 from grounding_jax.sim import rollout, sampler, scene, tasks
 from grounding_jax.sim.env import (
@@ -143,17 +150,22 @@ class ALHyper:
     target, float32 ``[36, 3, 2, 3]`` (word 0 its shape, 1 its colour; e.g. a TL's current
     estimates, `grounding_jax.learn.together.told_table`): each episode draws one of the two
     words. The reward still follows the true position.
+
+    ``start_ramp``: 0.0 -- every training episode starts within ``env.start_noise`` of home;
+    in (0, 1] -- a curriculum: the start's range grows from 0 (home) to ``env.start_noise``
+    over that fraction of the run, linearly in the episode's progress, and stays there.
     """
 
     learner: Any = cacla.CaclaHyper()
     env: EnvParams = EnvParams()
     executed_target: Any = 0.0
     told: Any = None
+    start_ramp: Any = 0.0
 
 
 #: What each of `ALHyper`'s own fields accepts (``validate`` and the sweep runner read
 #: it; the learner's and the env's fields have their own tables).
-HYPER_RULES: dict[str, Rule] = {"executed_target": FLAG}
+HYPER_RULES: dict[str, Rule] = {"executed_target": FLAG, "start_ramp": UNIT_CLOSED}
 
 
 def hyper(learner: learners.Learner | None = None, **fields: Any) -> ALHyper:
@@ -311,7 +323,7 @@ def make_episodes(config: ALConfig):
         key, plan = xs
         task, k_reset, step_keys = parts.draw(key, hp)
         lhp = lrn.at_episode(hp.learner, plan["phase1"], plan["progress"])
-        state = env.reset(k_reset, task, hp.env)
+        state = env.reset(k_reset, task, env_at(hp, plan["progress"]))
 
         def step(carry, k):
             agent, state = carry
@@ -351,7 +363,8 @@ def make_steps(config: ALConfig):
 
         # every reset of the chunk at once (one batched physics call; resets do not depend
         # on earlier episodes), so the loop restarts an episode by picking its first state
-        firsts = jax.vmap(env.reset, in_axes=(0, 0, None))(k_resets, tasks_, hp.env)
+        firsts = jax.vmap(lambda k, t, p: env.reset(k, t, env_at(hp, p)))(
+            k_resets, tasks_, plan["progress"])
         state = jax.tree.map(lambda x: x[0], firsts)
         lhp0 = lrn.at_episode(hp.learner, plan["phase1"][0], plan["progress"][0])
         _, nxt, record = jax.eval_shape(parts.learn, agent, state, step_keys[0, 0], lhp0, hp)
@@ -379,6 +392,14 @@ def make_steps(config: ALConfig):
         return agent, out
 
     return run
+
+
+def env_at(hp: ALHyper, progress: jax.Array) -> EnvParams:
+    """``hp.env`` for an episode at ``progress`` (0 -> 1 over the run): its start noise
+    grown by the ``start_ramp`` curriculum (unchanged where the ramp is 0)."""
+    ramp = jnp.asarray(hp.start_ramp, jnp.float32)
+    grown = jnp.where(ramp > 0, jnp.clip(progress / jnp.maximum(ramp, 1e-6), 0.0, 1.0), 1.0)
+    return hp.env.replace(start_noise=hp.env.start_noise * grown)
 
 
 def schedule(key: jax.Array, config: ALConfig, hp: ALHyper | None = None

@@ -47,6 +47,9 @@ FEATURES = ("arm_in_column_end", "arm_in_column_max", "arm_low_end", "arm_low_ma
             "visible_min", "hand_dx_end", "hand_dy_end", "hand_dx_min", "top_moved_max",
             "seen_end")
 N_FEATURES = len(FEATURES)
+#: the cameras a namer reads (`grounding_jax.sim.render.CAMERAS`): ``"both"``'s frames are
+#: the observer's and the eye's side by side, each read alone, their features joined
+CAMERAS = ("observer", "eye", "both")
 #: frames wider than this are read at every n-th pixel, to about this width
 READ_WIDTH = 240
 #: labels of `label_frames`
@@ -63,6 +66,13 @@ def check_frames(frames: Any, field: str = "frames") -> np.ndarray:
                          "[T, H, W, 3] or [N, T, H, W, 3] with T >= 2 frames of at least 8x8 "
                          "pixels, as grounding_jax.frames returns")
     return arr
+
+
+def n_features(camera: str = "observer") -> int:
+    """How many features per object `features` returns for frames of ``camera``."""
+    if camera not in CAMERAS:
+        raise ValueError(f"camera: unknown value {camera!r}; accepted values: {CAMERAS}")
+    return N_FEATURES * (2 if camera == "both" else 1)
 
 
 def label_frames(frames: np.ndarray) -> np.ndarray:
@@ -117,11 +127,23 @@ def _track(mask: np.ndarray, xs: np.ndarray, ys: np.ndarray
     return area, c, seen
 
 
-# one line per feature group reads better than helpers split to fit 80 lines
-def features(frames: Any) -> np.ndarray:
+def features(frames: Any, camera: str = "observer") -> np.ndarray:
     """Per object (by colour), the `FEATURES` of an episode's frames: ``float32 [3,
-    N_FEATURES]``. ``frames``: ``uint8 [T, H, W, 3]``."""
+    n_features(camera)]``. ``frames``: ``uint8 [T, H, W, 3]`` of ``camera`` (for ``"both"``
+    the two views side by side, as `grounding_jax.frames` renders them: each view's
+    features, the observer's first)."""
     frames = check_frames(frames)
+    if n_features(camera) == N_FEATURES:
+        return _view_features(frames)
+    if frames.shape[2] % 2:
+        raise ValueError(f"frames: {frames.shape[2]} pixels wide; accepted for camera 'both': "
+                         "an even width (two views side by side)")
+    return np.concatenate([_view_features(v) for v in np.split(frames, 2, axis=2)], -1)
+
+
+# one line per feature group reads better than helpers split to fit 80 lines
+def _view_features(frames: np.ndarray) -> np.ndarray:
+    """`features` of one camera's frames ``[T, H, W, 3]``: ``float32 [3, N_FEATURES]``."""
     stride = max(1, frames.shape[2] // READ_WIDTH)  # what a wider frame adds is not needed
     lab = label_frames(frames[:, ::stride, ::stride])
     t_n, h, w = lab.shape
@@ -158,8 +180,9 @@ def features(frames: Any) -> np.ndarray:
 
 
 class FramesNamer(struct.PyTreeNode):
-    """The fitted scorer: feature standardization (``mean``, ``scale`` ``[N_FEATURES]``) and
-    an ensemble of ``members`` one-hidden-layer networks (``w1 [members, N_FEATURES,
+    """The fitted scorer: feature standardization (``mean``, ``scale`` ``[F]``, F =
+    `n_features` of its camera) and
+    an ensemble of ``members`` one-hidden-layer networks (``w1 [members, F,
     hidden]``, ``w2 [members, hidden, n_actions]``), each shared by the three objects; their
     probabilities are averaged (members fitted from other draws disagree where the frames say
     little, and the average is steadier than any one)."""
@@ -175,7 +198,7 @@ class FramesNamer(struct.PyTreeNode):
 
     def member_logits(self, feats: jax.Array) -> jax.Array:
         """Each member's logits ``[..., members, n_actions * 3]`` (action-major) of features
-        ``[..., 3, N_FEATURES]``."""
+        ``[..., 3, F]``."""
         z = (feats - self.mean) / self.scale
         h = jnp.tanh(jnp.einsum("...of,mfh->...moh", z, self.w1) + self.b1[:, None, :])
         s = jnp.einsum("...moh,mha->...mao", h, self.w2) + self.b2[:, :, None]
@@ -183,7 +206,7 @@ class FramesNamer(struct.PyTreeNode):
 
     def scores(self, feats: jax.Array) -> jax.Array:
         """``[..., n_actions, 3 objects]`` log of the members' mean probability of each
-        (action, object) pair for features ``[..., 3, N_FEATURES]``."""
+        (action, object) pair for features ``[..., 3, F]``."""
         p = jax.nn.softmax(self.member_logits(feats), axis=-1).mean(-2)
         return jnp.log(p).reshape(p.shape[:-1] + (self.w2.shape[-1], -1))
 
@@ -191,9 +214,9 @@ class FramesNamer(struct.PyTreeNode):
 def like(hidden: int, n_actions: int, camera: str = "observer", members: int = 1
          ) -> FramesNamer:
     """A zero `FramesNamer` of these sizes (the shape a checkpoint is restored into)."""
-    z = jnp.zeros
-    return FramesNamer(mean=z(N_FEATURES), scale=jnp.ones(N_FEATURES),
-                       w1=z((members, N_FEATURES, hidden)), b1=z((members, hidden)),
+    z, f = jnp.zeros, n_features(camera)
+    return FramesNamer(mean=z(f), scale=jnp.ones(f),
+                       w1=z((members, f, hidden)), b1=z((members, hidden)),
                        w2=z((members, hidden, n_actions)), b2=z((members, n_actions)),
                        camera=camera)
 
@@ -207,7 +230,7 @@ def fit(key: jax.Array, feats: np.ndarray, action: np.ndarray, target: np.ndarra
 
     Args:
         key: initialises the weights.
-        feats: ``[N, 3, N_FEATURES]`` (`features` of N episodes).
+        feats: ``[N, 3, F]`` (`features` of N episodes, F = `n_features` of ``camera``).
         action: ``[N]`` the action done (index).
         target: ``[N]`` the target's colour index (into `COLOURS`).
         n_actions: how many actions there are.
@@ -218,12 +241,15 @@ def fit(key: jax.Array, feats: np.ndarray, action: np.ndarray, target: np.ndarra
         camera: the camera the frames came from (kept with the namer).
         members: networks in the ensemble.
     """
-    x = np.asarray(feats, np.float32)
-    flat = x.reshape(-1, N_FEATURES)
+    x, f = np.asarray(feats, np.float32), n_features(camera)
+    if x.ndim != 3 or x.shape[1:] != (len(COLOURS), f):
+        raise ValueError(f"feats: shape {x.shape}; accepted for camera {camera!r}: "
+                         f"[N, {len(COLOURS)}, {f}]")
+    flat = x.reshape(-1, f)
     k1, k2 = jax.random.split(key)
     net = FramesNamer(
         mean=jnp.asarray(flat.mean(0)), scale=jnp.asarray(flat.std(0) + 1e-6),
-        w1=jax.random.normal(k1, (members, N_FEATURES, hidden)) / np.sqrt(N_FEATURES),
+        w1=jax.random.normal(k1, (members, f, hidden)) / np.sqrt(f),
         b1=jnp.zeros((members, hidden)),
         w2=jax.random.normal(k2, (members, hidden, n_actions)) / np.sqrt(hidden),
         b2=jnp.zeros((members, n_actions)), camera=camera)
@@ -294,12 +320,13 @@ def watch(namers: dict[str, FramesNamer] | None, frames: Any, family: str,
     net = namers[family]
     if camera != net.camera:
         raise ValueError(f"camera: {camera!r}, but the {family!r} namer was fitted on frames of "
-                         f"the {net.camera!r} camera; accepted: {net.camera!r}")
+                         f"the {net.camera!r} camera; accepted: {net.camera!r} (render them with "
+                         f"grounding_jax.frames(episode, camera={net.camera!r}))")
     if int(net.w2.shape[-1]) != len(action_names):
         raise ValueError(f"family: its namer scores {net.w2.shape[-1]} actions, the robot has "
                          f"{len(action_names)}")
     out = []
     for episode in (arr if arr.ndim == 5 else arr[None]):
-        a, c, _ = best(net, features(episode))
+        a, c, _ = best(net, features(episode, net.camera))
         out.append((action_names[a], COLOURS[c]))
     return out if arr.ndim == 5 else out[0]

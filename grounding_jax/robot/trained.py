@@ -465,7 +465,9 @@ class Robot:
         ``uint8 [T, H, W, 3]``, or a batch ``[N, T, H, W, 3]`` -- with no joint angles and no
         simulator state (see `grounding_jax.robot.seeing`): (action word, the target's colour
         word), a list for a batch. ``family``: whose frames ("paper": objects on the slots,
-        "free": objects anywhere); ``camera``: the one they were rendered from (the namer's).
+        "free": objects anywhere); ``camera``: the one they were rendered from, the namer's
+        (``"both"``: ``grounding_jax.frames(episode, camera="both")``, the observer's and the
+        eye's views side by side).
 
         Raises:
             ValueError: frames of another shape or type, an unknown family, a camera other

@@ -18,6 +18,11 @@ from typing import Any
 
 import numpy as np
 
+#: the cameras `frames` draws from: a scene camera, or ``"both"`` (the two side by side)
+CAMERAS = ("observer", "eye", "both")
+#: the views of ``"both"``, left to right
+BOTH = ("observer", "eye")
+
 #: the containers write_video writes, by file suffix
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -49,26 +54,25 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
     Args:
         episode: a `Robot.perform` result (its ``trajectory``) or an env trajectory of
             one episode (``State`` with a leading steps axis, e.g. from ``jax.lax.scan``).
-        camera: ``"observer"`` (third person) or ``"eye"`` (the robot's view, arm drawn).
-        width: frame width in pixels.
+        camera: ``"observer"`` (third person), ``"eye"`` (the robot's view, arm drawn) or
+            ``"both"`` (the two side by side, observer left: ``2 * width`` pixels wide).
+        width: frame width in pixels (of each view).
         height: frame height in pixels.
         every: draw every ``every``-th step.
         caption: text written on every frame (e.g. the command and what the robot named).
 
     Returns:
-        ``uint8 [frames, height, width, 3]``.
+        ``uint8 [frames, height, width, 3]`` (``2 * width`` for ``"both"``).
     """
-    from grounding_jax.sim import vision
-
     for name, v in (("width", width), ("height", height), ("every", every)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ValueError(f"{name}: {v!r} is not accepted; accepted: an int >= 1")
+    if camera not in CAMERAS:
+        raise ValueError(f"camera: unknown value {camera!r}; accepted values: {CAMERAS}")
     qpos, layout = trajectory_of(episode)
-    renderer = vision.EyeRenderer(width, height, camera=camera)
-    try:
-        out = np.stack([renderer.render(layout, qpos=q, arm=True) for q in qpos[::every]])
-    finally:
-        renderer.close()
+    views = BOTH if camera == "both" else (camera,)
+    out = np.concatenate([_render(qpos[::every], layout, c, width, height) for c in views], 2)
+    width = out.shape[2]
     if caption:
         import cv2
 
@@ -80,6 +84,18 @@ def frames(episode: Any, camera: str = "observer", width: int = 480, height: int
             cv2.putText(f, caption, (6, height - 7), font, scale, (255, 255, 255), 1,
                         cv2.LINE_AA)
     return out
+
+
+def _render(qpos: np.ndarray, layout: int, camera: str, width: int, height: int
+            ) -> np.ndarray:
+    """``uint8 [len(qpos), height, width, 3]``: the arm at each ``qpos`` from ``camera``."""
+    from grounding_jax.sim import vision
+
+    renderer = vision.EyeRenderer(width, height, camera=camera)
+    try:
+        return np.stack([renderer.render(layout, qpos=q, arm=True) for q in qpos])
+    finally:
+        renderer.close()
 
 
 def ffmpeg_binary() -> str:
