@@ -78,6 +78,10 @@ def test_both_cameras_read_each_view_alone_and_join_their_features():
     assert net.w1.shape == (2, 2 * seeing.N_FEATURES, 4)
     back = seeing.namers_like(seeing.namers_config({"paper": net}))["paper"]
     assert back.camera == "both" and back.w1.shape == net.w1.shape
+    names = ("point", "touch", "push")
+    frames = np.concatenate([left, right], 2)
+    assert seeing.watch({"paper": net}, frames, "paper", names, camera="both") == (
+        names[seeing.best(net, both)[0]], seeing.COLOURS[seeing.best(net, both)[1]])
     with pytest.raises(ValueError, match=r"feats: shape .*\[N, 3, 30\]"):
         seeing.fit(jax.random.key(0), np.zeros((4, 3, seeing.N_FEATURES)), np.zeros(4, int),
                    np.zeros(4, int), 3, camera="both")

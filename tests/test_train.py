@@ -378,13 +378,12 @@ def test_the_watch_frames_stage_saves_a_robot_that_names_rendered_frames(quick):
     assert all(r["agent"] in res["agents"] and r["agent"] != robot.saved_agent
                for r in res["rows"])  # other agents' episodes, never its own
     # loaded, it names frames the way the stage's namer did (the same arrays)
-    assert robot.frames_namers["paper"].camera == "both"  # the stage's default camera
-    frames = gj.frames(robot.perform("push", "red", layout=3), camera="both", width=120,
-                       height=80, every=5)
-    assert robot.watch_frames(frames, camera="both") in {
+    assert robot.frames_namers["paper"].camera == "observer"  # the stage's default camera
+    frames = gj.frames(robot.perform("push", "red", layout=3), width=120, height=80, every=5)
+    assert robot.watch_frames(frames) in {
         (a, c) for a in ("point", "touch", "push") for c in ("red", "green", "blue")}
-    with pytest.raises(ValueError, match="render them with .*camera='both'"):
-        robot.watch_frames(frames[:, :, :120])
+    with pytest.raises(ValueError, match="render them with .*camera='observer'"):
+        robot.watch_frames(frames, camera="both")
     assert "## Beyond the paper: naming from the camera" in (quick / "REPORT.md").read_text()
 
 

@@ -37,8 +37,8 @@ class WatchFramesConfig:
     agents' episodes it names (rendered at `grounding_jax.frames`' defaults), the namer's
     size (hidden units, weight decay, ensemble members), the families watched and the camera
     (``"observer"``: `grounding_jax.frames`' default, ``"eye"``: the robot's own, ``"both"``:
-    the two side by side, the default: the eye sees a pushed target move where the hand
-    hides it from the observer, the observer tells the objects apart better)."""
+    the two side by side: the eye sees a pushed target move where the hand hides it from the
+    observer, the observer tells the objects apart better; docs/beyond.md measures them)."""
 
     own_episodes: int = 12
     others: int = 3
@@ -49,7 +49,7 @@ class WatchFramesConfig:
     l2: float = 1e-3
     members: int = 7
     families: tuple[str, ...] = ("paper",)
-    camera: str = "both"
+    camera: str = "observer"
 
     def __post_init__(self) -> None:
         for name in ("own_episodes", "others", "width", "every", "hidden", "members"):
