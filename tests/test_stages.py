@@ -110,3 +110,13 @@ def test_report_sections_use_the_stage_and_say_when_one_is_missing(monkeypatch):
     assert "## A toy" in text and "drew 0.250" in text
     assert "## Stage `gone`" in text and "Not registered" in text
     assert stage.report_sections({"profile": "quick"}) == []
+
+
+@pytest.mark.parametrize("changes, needle", [
+    ({"touch_still_penalty": -1.0}, "touch_still_penalty: -1.0; accepted: >= 0"),
+    ({"variants": ("paper_still",)}, "variants: .*paper_memory_touch_pose_still"),
+    ({"save": "paper_memory"}, "save: 'paper_memory'; accepted: one of variants"),
+])
+def test_a_bad_touch_memory_config_is_named(changes, needle):
+    with pytest.raises(ValueError, match=needle):
+        stage.stages()["touch_memory"].make_config("quick", changes)

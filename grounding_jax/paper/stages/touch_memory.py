@@ -1,7 +1,9 @@
 """Touch with memory: the paper family's actor given a memory of its last two steps (joints and
 actions, `grounding_jax.sim.tasks.PAPER_MEMORY`), trained by CACLA on the same budget, beside
 touch's reward changed to the free family's (reach the slot's touching pose, contact paid,
-the target's motion penalized: ``PAPER_TOUCH_POSE``, not the paper's) and both together.
+the target's motion penalized: ``PAPER_TOUCH_POSE``, not the paper's) and both together,
+each also with touch told to hold still once in contact (``EnvParams.touch_still_penalty``:
+the arm's motion while it touches the target costs).
 
 The paper suggests "a recurrent network, memory of past positions" for touch's oscillation.
 Every variant is trained from the stage's key on the run's schedule and judged, with the
@@ -31,29 +33,39 @@ from grounding_jax.paper.stages import random_starts as RS
 from grounding_jax.sim import tasks, tl_data
 from grounding_jax.sim.env import Env, EnvConfig, EnvParams
 
-#: the variants' task sets, and what each changes from the paper's
-VARIANTS = {"paper_memory": "memory, the paper's reward",
-            "paper_touch_pose": "no memory, touch reaches a touching pose",
-            "paper_memory_touch_pose": "memory, touch reaches a touching pose"}
+#: the variants: (task set, what it changes from the paper's, whether touch is told to hold
+#: still in contact)
+VARIANTS = {"paper_memory": ("paper_memory", "memory, the paper's reward", False),
+            "paper_touch_pose": ("paper_touch_pose", "no memory, touch reaches a touching pose",
+                                 False),
+            "paper_memory_touch_pose": ("paper_memory_touch_pose",
+                                        "memory, touch reaches a touching pose", False),
+            "paper_touch_pose_still": ("paper_touch_pose", "no memory, touch reaches a "
+                                       "touching pose and holds still there", True),
+            "paper_memory_touch_pose_still": ("paper_memory_touch_pose", "memory, touch "
+                                              "reaches a touching pose and holds still there",
+                                              True)}
 GOAL_TOUCH, GOAL_OTHERS = 0.85, 0.95
 
 
 @dataclasses.dataclass(frozen=True)
 class TouchMemoryConfig:
     """The schedule (agents, phase 1 and 2 episodes: the quick profile's AL), the bonus the
-    touching-pose variants get while touching (``EnvParams.touch_bonus``) and their
+    touching-pose variants get while touching (``EnvParams.touch_bonus``), what the arm's
+    motion costs while it touches the target in the variants that hold still (per scaled
+    joint unit, ``EnvParams.touch_still_penalty``), the touching-pose variants'
     actor-critics (``heads``: touch's own, point and push sharing one; with one for all,
     touch's larger reward took point's network, with one each push lost its), the variants
-    (task
-    sets of `VARIANTS`), the one saved as a robot, and how they are judged."""
+    (names of `VARIANTS`), the one saved as a robot, and how they are judged."""
 
     seeds: int = 2
     phase1: int = 150
     phase2: int = 150
     touch_bonus: float = 0.0
+    touch_still_penalty: float = 3.0
     heads: tuple[int, ...] = (0, 1, 0)
-    variants: tuple[str, ...] = ("paper_memory_touch_pose",)
-    save: str = "paper_memory_touch_pose"
+    variants: tuple[str, ...] = ("paper_memory_touch_pose_still",)
+    save: str = "paper_memory_touch_pose_still"
     noise: tuple[float, ...] = (0.0, 0.3)
     layouts: str = "shapes"
     perform_checks: int = 3
@@ -69,6 +81,8 @@ class TouchMemoryConfig:
         if self.seeds < 1 or self.phase1 < 0 or self.phase1 + self.phase2 < 1:
             raise ValueError(f"seeds >= 1 and phase1 + phase2 >= 1, got {self.seeds}, "
                              f"{self.phase1} + {self.phase2}")
+        if not self.touch_still_penalty >= 0:
+            raise ValueError(f"touch_still_penalty: {self.touch_still_penalty}; accepted: >= 0")
         RS.RandomStartsConfig(self.noise, self.layouts, 1, self.perform_checks)  # checks them
         cacla.CaclaConfig(task_set=tasks.PAPER_TOUCH_POSE.name, heads=self.heads)
 
@@ -115,14 +129,17 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
     rows = {"paper": {"what": "the run's AL agents: no memory, the paper's reward",
                       "levels": RS.judge_levels(shipped, robot.env_config, k_judge, judged)[0]}}
     keys = jax.random.split(k_train, config.seeds)
-    fields = {"touch_bonus": config.touch_bonus}
-    for ts in config.variants:
+    for name in config.variants:
+        ts, what, still = VARIANTS[name]
         pose = "touch_pose" in ts
-        agents, cfg = train_variant(keys, config.phase1, config.phase2, ts,
-                                    fields if pose else {}, config.heads if pose else None)
+        fields = {"touch_bonus": config.touch_bonus} if pose else {}
+        if still:
+            fields["touch_still_penalty"] = config.touch_still_penalty
+        agents, cfg = train_variant(keys, config.phase1, config.phase2, ts, fields,
+                                    config.heads if pose else None)
         levels, raw = RS.judge_levels(agents, cfg.env, k_judge, judged)
-        rows[ts] = {"what": VARIANTS[ts], "levels": levels}
-        if ts == config.save:
+        rows[name] = {"what": what, "levels": levels}
+        if name == config.save:
             saved_agents, saved_cfg, saved_raw = agents, cfg, raw[str(config.noise[0])]
     agent = trees.take(saved_agents, 0)
     net, an_acc = _namer(k_an, robot, agent, saved_cfg.env)
@@ -131,7 +148,8 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
                  robot.an.config, saved_cfg.env,
                  extra={"stage": "touch_memory", "variant": config.save,
                         "touch_bonus": config.touch_bonus if "touch_pose" in config.save
-                        else None},
+                        else None, "touch_still_penalty": config.touch_still_penalty
+                        if VARIANTS[config.save][2] else None},
                  agents=saved_agents, saved_agent=0)
     mine = trained.load(modules)  # loaded and asked to perform, as a user would
     task_list = al_eval.all_tasks(RS.LAYOUTS[config.layouts])
@@ -140,9 +158,11 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
                                EnvParams(start_noise=config.noise[0]), config.perform_checks, 0)
     res = {"seeds": config.seeds, "episodes": config.phase1 + config.phase2,
            "touch_bonus": config.touch_bonus,
+           "touch_still_penalty": config.touch_still_penalty,
            "touch_moved_penalty": float(EnvParams().touch_moved_penalty), "variants": rows,
            "saved": config.save,
-           "saved_obs_size": tasks.get(config.save).obs_size, "saved_an_test_acc": an_acc,
+           "saved_obs_size": tasks.get(VARIANTS[config.save][0]).obs_size,
+           "saved_an_test_acc": an_acc,
            "perform_checks": checks,
            "perform_agreement": (float(np.mean([r["judge"] == r["perform"] for r in checks]))
                                  if checks else None)}
@@ -158,8 +178,10 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
              "touching pose: touch's reward is minus the joints' L1 distance to the slot's "
              "touching pose (the palm on the target's top), +{b} while touching the target, "
              "-{m} per metre it moved, instead of the paper's minus the palm's distance and "
-             "-0.3 while touching (not the paper's reward).".format(
-                 b=res["touch_bonus"], m=res["touch_moved_penalty"]), "",
+             "-0.3 while touching (not the paper's reward); holding still: -{s} per scaled "
+             "joint unit the arm moves while it touches the target.".format(
+                 b=res["touch_bonus"], m=res["touch_moved_penalty"],
+                 s=res.get("touch_still_penalty", 0.0)), "",
              "| variant | start | point | touch | push | touch failures: no late contact / "
              "target moved >= 3 cm |", "|---|---|---|---|---|---|"]
     for row in res["variants"].values():
@@ -174,7 +196,7 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
     start = "home" if config.noise[0] == 0 else f"starts within ±{config.noise[0]}"
     lines += ["", f"Goal (from {start}): touch >= {pct(GOAL_TOUCH)} with point and push >= "
               f"{pct(GOAL_OTHERS)}: {'met' if met else 'missed'} by the saved variant "
-              f"({VARIANTS[res['saved']]}, observation of {res['saved_obs_size']} units). "
+              f"({VARIANTS[res['saved']][1]}, observation of {res['saved_obs_size']} units). "
               f"Saved as a robot in `touch_memory/modules` with an AN fitted on its agent 0 "
               f"(test accuracy {pct(res['saved_an_test_acc'])})."]
     lines += RS.perform_sentence(len(res["perform_checks"]), res["perform_agreement"])
