@@ -99,6 +99,18 @@ def _frames_rows(files: list[pathlib.Path]) -> list[str]:
     return rows
 
 
+def _stage_frames_rows(files: list[pathlib.Path]) -> list[str]:
+    rows = ["| file | how | camera | family | others named right from frames: action and "
+            "target (action / target) | joint angles, same episodes |", "|---|---|---|---|---|---|"]
+    for p in files:
+        d = json.loads(p.read_text())
+        for f, r in d["result"]["families"].items():
+            rows.append(f"| `{p.name}` | `{d['how'].split(' (')[0]}` | {d['config']['camera']} | "
+                        f"{f} | {_pct(r['frames_both'])} ({_pct(r['frames_action'])} / "
+                        f"{_pct(r['frames_target'])}) | {_pct(r['joints_both'])} |")
+    return rows
+
+
 def index() -> str:
     """The index, as Markdown."""
     free = sorted(TUNING.glob("free_tuning_*.json"))
@@ -108,7 +120,9 @@ def index() -> str:
     frames = sorted(TUNING.glob("frames_levers*.json"))
     together = sorted(TUNING.glob("together_seeds*.json"))
     tl_curves = sorted(TUNING.glob("together_tl_curves.json"))
+    stage_frames = sorted(TUNING.glob("watch_frames_*.json"))
     known = set(free) | set(tl_xy) | set(substeps) | set(variants) | set(frames)
+    known |= set(stage_frames)
     known |= set(together) | set(tl_curves)
     other = sorted(p.name for p in TUNING.glob("*.json") if p not in known)
     lines = [
@@ -156,6 +170,10 @@ def index() -> str:
                   "(`docs/beyond.md`). The namer is fitted on the saved robot's own episodes and "
                   "judged on the run's other agents' episodes, rendered at "
                   "`grounding_jax.frames`' defaults.", "", *_frames_rows(frames)]
+    if stage_frames:
+        lines += ["", "The `watch_frames` stage run on train.py's own seed with another camera "
+                  "(the committed `results/paper` run is the shipped one's):", "",
+                  *_stage_frames_rows(stage_frames)]
     if together:
         import together_seeds
 
