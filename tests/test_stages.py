@@ -116,6 +116,7 @@ def test_report_sections_use_the_stage_and_say_when_one_is_missing(monkeypatch):
     ({"touch_still_penalty": -1.0}, "touch_still_penalty: -1.0; accepted: >= 0"),
     ({"variants": ("paper_still",)}, "variants: .*paper_memory_touch_pose_still"),
     ({"save": "paper_memory"}, "save: 'paper_memory'; accepted: one of variants"),
+    ({"start_ramp": 2.0}, r"start_noise, start_ramp: 0.5, 2.0; accepted: each in \[0, 1\]"),
 ])
 def test_a_bad_touch_memory_config_is_named(changes, needle):
     with pytest.raises(ValueError, match=needle):

@@ -34,17 +34,20 @@ from grounding_jax.sim import tasks, tl_data
 from grounding_jax.sim.env import Env, EnvConfig, EnvParams
 
 #: the variants: (task set, what it changes from the paper's, whether touch is told to hold
-#: still in contact)
-VARIANTS = {"paper_memory": ("paper_memory", "memory, the paper's reward", False),
+#: still in contact, whether it trains from random starts -- a curriculum from home)
+VARIANTS = {"paper_memory": ("paper_memory", "memory, the paper's reward", False, False),
             "paper_touch_pose": ("paper_touch_pose", "no memory, touch reaches a touching pose",
-                                 False),
+                                 False, False),
             "paper_memory_touch_pose": ("paper_memory_touch_pose",
-                                        "memory, touch reaches a touching pose", False),
+                                        "memory, touch reaches a touching pose", False, False),
             "paper_touch_pose_still": ("paper_touch_pose", "no memory, touch reaches a "
-                                       "touching pose and holds still there", True),
+                                       "touching pose and holds still there", True, False),
             "paper_memory_touch_pose_still": ("paper_memory_touch_pose", "memory, touch "
                                               "reaches a touching pose and holds still there",
-                                              True)}
+                                              True, False),
+            "paper_touch_pose_still_starts": ("paper_touch_pose", "no memory, touch reaches a "
+                                              "touching pose and holds still there, trained "
+                                              "from random starts", True, True)}
 GOAL_TOUCH, GOAL_OTHERS = 0.85, 0.95
 
 
@@ -53,7 +56,9 @@ class TouchMemoryConfig:
     """The schedule (agents, phase 1 and 2 episodes: the quick profile's AL), the bonus the
     touching-pose variants get while touching (``EnvParams.touch_bonus``), what the arm's
     motion costs while it touches the target in the variants that hold still (per scaled
-    joint unit, ``EnvParams.touch_still_penalty``), the touching-pose variants'
+    joint unit, ``EnvParams.touch_still_penalty``), the random starts of the variants trained
+    from them (``start_noise``, reached over the first ``start_ramp`` of the run:
+    `grounding_jax.learn.al.ALHyper.start_ramp`), the touching-pose variants'
     actor-critics (``heads``: touch's own, point and push sharing one; with one for all,
     touch's larger reward took point's network, with one each push lost its), the variants
     (names of `VARIANTS`), the one saved as a robot, and how they are judged."""
@@ -63,6 +68,8 @@ class TouchMemoryConfig:
     phase2: int = 150
     touch_bonus: float = 0.0
     touch_still_penalty: float = 3.0
+    start_noise: float = 0.5
+    start_ramp: float = 0.5
     heads: tuple[int, ...] = (0, 1, 0)
     variants: tuple[str, ...] = ("paper_memory_touch_pose_still",)
     save: str = "paper_memory_touch_pose_still"
@@ -83,6 +90,9 @@ class TouchMemoryConfig:
                              f"{self.phase1} + {self.phase2}")
         if not self.touch_still_penalty >= 0:
             raise ValueError(f"touch_still_penalty: {self.touch_still_penalty}; accepted: >= 0")
+        if not (0 <= self.start_noise <= 1 and 0 <= self.start_ramp <= 1):
+            raise ValueError(f"start_noise, start_ramp: {self.start_noise}, {self.start_ramp}; "
+                             "accepted: each in [0, 1]")
         RS.RandomStartsConfig(self.noise, self.layouts, 1, self.perform_checks)  # checks them
         cacla.CaclaConfig(task_set=tasks.PAPER_TOUCH_POSE.name, heads=self.heads)
 
@@ -130,11 +140,13 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
                       "levels": RS.judge_levels(shipped, robot.env_config, k_judge, judged)[0]}}
     keys = jax.random.split(k_train, config.seeds)
     for name in config.variants:
-        ts, what, still = VARIANTS[name]
+        ts, what, still, starts = VARIANTS[name]
         pose = "touch_pose" in ts
         fields = {"touch_bonus": config.touch_bonus} if pose else {}
         if still:
             fields["touch_still_penalty"] = config.touch_still_penalty
+        if starts:
+            fields.update(start_noise=config.start_noise, start_ramp=config.start_ramp)
         agents, cfg = train_variant(keys, config.phase1, config.phase2, ts, fields,
                                     config.heads if pose else None)
         levels, raw = RS.judge_levels(agents, cfg.env, k_judge, judged)
@@ -149,7 +161,8 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
                  extra={"stage": "touch_memory", "variant": config.save,
                         "touch_bonus": config.touch_bonus if "touch_pose" in config.save
                         else None, "touch_still_penalty": config.touch_still_penalty
-                        if VARIANTS[config.save][2] else None},
+                        if VARIANTS[config.save][2] else None,
+                        "start_noise": config.start_noise if VARIANTS[config.save][3] else 0.0},
                  agents=saved_agents, saved_agent=0)
     mine = trained.load(modules)  # loaded and asked to perform, as a user would
     task_list = al_eval.all_tasks(RS.LAYOUTS[config.layouts])
@@ -159,6 +172,7 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
     res = {"seeds": config.seeds, "episodes": config.phase1 + config.phase2,
            "touch_bonus": config.touch_bonus,
            "touch_still_penalty": config.touch_still_penalty,
+           "start_noise": config.start_noise, "start_ramp": config.start_ramp,
            "touch_moved_penalty": float(EnvParams().touch_moved_penalty), "variants": rows,
            "saved": config.save,
            "saved_obs_size": tasks.get(VARIANTS[config.save][0]).obs_size,
@@ -179,9 +193,12 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
              "touching pose (the palm on the target's top), +{b} while touching the target, "
              "-{m} per metre it moved, instead of the paper's minus the palm's distance and "
              "-0.3 while touching (not the paper's reward); holding still: -{s} per scaled "
-             "joint unit the arm moves while it touches the target.".format(
+             "joint unit the arm moves while it touches the target; random starts: within "
+             "±{n} of home, the range growing from 0 over the first {r:.0%} of the "
+             "episodes.".format(
                  b=res["touch_bonus"], m=res["touch_moved_penalty"],
-                 s=res.get("touch_still_penalty", 0.0)), "",
+                 s=res.get("touch_still_penalty", 0.0), n=res.get("start_noise", 0.5),
+                 r=res.get("start_ramp", 0.5)), "",
              "| variant | start | point | touch | push | touch failures: no late contact / "
              "target moved >= 3 cm |", "|---|---|---|---|---|---|"]
     for row in res["variants"].values():
