@@ -35,7 +35,7 @@ import numpy as np
 import optax
 from flax import struct
 
-from grounding_jax.sim import tasks
+from grounding_jax.sim import render, tasks
 
 #: the table's colour in the observer camera's frames (flat, no shadows); `label_frames` takes
 #: the first frame's commonest colour as the table's, so other cameras and lights read alike
@@ -47,9 +47,9 @@ FEATURES = ("arm_in_column_end", "arm_in_column_max", "arm_low_end", "arm_low_ma
             "visible_min", "hand_dx_end", "hand_dy_end", "hand_dx_min", "top_moved_max",
             "seen_end")
 N_FEATURES = len(FEATURES)
-#: the cameras a namer reads (`grounding_jax.sim.render.CAMERAS`): ``"both"``'s frames are
+#: the cameras a namer reads, those `grounding_jax.frames` renders: ``"both"``'s frames are
 #: the observer's and the eye's side by side, each read alone, their features joined
-CAMERAS = ("observer", "eye", "both")
+CAMERAS = render.CAMERAS
 #: frames wider than this are read at every n-th pixel, to about this width
 READ_WIDTH = 240
 #: labels of `label_frames`
