@@ -111,6 +111,21 @@ def _stage_frames_rows(files: list[pathlib.Path]) -> list[str]:
     return rows
 
 
+def _stage_touch_rows(files: list[pathlib.Path]) -> list[str]:
+    rows = ["| file | episodes | variant | start | median agent: point / touch / push |",
+            "|---|---|---|---|---|"]
+    for p in files:
+        d = json.loads(p.read_text())
+        for name, row in d["result"]["variants"].items():
+            if name == "paper":  # the run's own agents: trained on the run's schedule
+                continue
+            for noise, lv in row["levels"].items():
+                trio = " / ".join(_pct(lv["by_action"][a]) for a in ACTIONS)
+                rows.append(f"| `{p.name}` | {d['result']['episodes']} | {row['what']} | "
+                            f"{'home' if float(noise) == 0 else '±' + noise} | {trio} |")
+    return rows
+
+
 def index() -> str:
     """The index, as Markdown."""
     free = sorted(TUNING.glob("free_tuning_*.json"))
@@ -122,7 +137,8 @@ def index() -> str:
     tl_curves = sorted(TUNING.glob("together_tl_curves.json"))
     stage_frames = sorted(TUNING.glob("watch_frames_*.json"))
     known = set(free) | set(tl_xy) | set(substeps) | set(variants) | set(frames)
-    known |= set(stage_frames)
+    stage_touch = sorted(TUNING.glob("touch_memory_*.json"))
+    known |= set(stage_frames) | set(stage_touch)
     known |= set(together) | set(tl_curves)
     other = sorted(p.name for p in TUNING.glob("*.json") if p not in known)
     lines = [
@@ -164,6 +180,10 @@ def index() -> str:
         "",
         *_al_variant_rows(variants),
     ]
+    if stage_touch:
+        lines += ["", "The `touch_memory` stage run on train.py's own seed with other settings "
+                  "(each file's `how`; the committed `results/paper` run is the shipped "
+                  "profile's):", "", *_stage_touch_rows(stage_touch)]
     if frames:
         lines += ["", f"## Naming from frames ({len(frames)} runs)", "",
                   "Written by `benchmarks/frames_levers.py`; they fed *Naming from the camera* "
