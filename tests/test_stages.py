@@ -117,7 +117,23 @@ def test_report_sections_use_the_stage_and_say_when_one_is_missing(monkeypatch):
     ({"variants": ("paper_still",)}, "variants: .*paper_memory_touch_pose_still"),
     ({"save": "paper_memory"}, "save: 'paper_memory'; accepted: one of variants"),
     ({"start_ramp": 2.0}, r"start_noise, start_ramp: 0.5, 2.0; accepted: each in \[0, 1\]"),
+    ({"still_extra": -5}, "still_extra: -5; accepted: an int >= 0"),
 ])
 def test_a_bad_touch_memory_config_is_named(changes, needle):
     with pytest.raises(ValueError, match=needle):
         stage.stages()["touch_memory"].make_config("quick", changes)
+
+
+def test_only_the_variants_that_hold_still_get_still_extra():
+    from grounding_jax.paper.stages import touch_memory as tm
+    config = stage.stages()["touch_memory"].make_config(
+        "paper", {"phase2": 10, "still_extra": 20, "touch_bonus": 0.5})
+    assert tm.variant_plan("paper_memory", config) == ("paper_memory", 10, {}, None)
+    ts, phase2, fields, heads = tm.variant_plan("paper_memory_touch_pose_still", config)
+    assert (ts, phase2, heads) == ("paper_memory_touch_pose", 30, (0, 1, 0))
+    assert fields == {"touch_bonus": 0.5, "touch_still_penalty": 3.0}
+    _, phase2, fields, _ = tm.variant_plan("paper_touch_pose_still_starts", config)
+    assert phase2 == 30 and fields["start_noise"] == 0.5 and fields["start_ramp"] == 0.5
+    _, phase2, _, _ = tm.variant_plan("paper_touch_pose_still", dataclasses.replace(
+        config, still_extra=0))
+    assert phase2 == 10

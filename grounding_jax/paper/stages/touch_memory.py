@@ -58,7 +58,9 @@ class TouchMemoryConfig:
     motion costs while it touches the target in the variants that hold still (per scaled
     joint unit, ``EnvParams.touch_still_penalty``), the random starts of the variants trained
     from them (``start_noise``, reached over the first ``start_ramp`` of the run:
-    `grounding_jax.learn.al.ALHyper.start_ramp`), the touching-pose variants'
+    `grounding_jax.learn.al.ALHyper.start_ramp`), the phase 2 episodes added for the variants
+    that hold still (``still_extra``: holding still is learnt after reaching, so they may be
+    given more), the touching-pose variants'
     actor-critics (``heads``: touch's own, point and push sharing one; with one for all,
     touch's larger reward took point's network, with one each push lost its), the variants
     (names of `VARIANTS`), the one saved as a robot, and how they are judged."""
@@ -66,6 +68,7 @@ class TouchMemoryConfig:
     seeds: int = 2
     phase1: int = 150
     phase2: int = 150
+    still_extra: int = 0
     touch_bonus: float = 0.0
     touch_still_penalty: float = 3.0
     start_noise: float = 0.5
@@ -88,6 +91,8 @@ class TouchMemoryConfig:
         if self.seeds < 1 or self.phase1 < 0 or self.phase1 + self.phase2 < 1:
             raise ValueError(f"seeds >= 1 and phase1 + phase2 >= 1, got {self.seeds}, "
                              f"{self.phase1} + {self.phase2}")
+        if self.still_extra < 0:
+            raise ValueError(f"still_extra: {self.still_extra}; accepted: an int >= 0")
         if not self.touch_still_penalty >= 0:
             raise ValueError(f"touch_still_penalty: {self.touch_still_penalty}; accepted: >= 0")
         if not (0 <= self.start_noise <= 1 and 0 <= self.start_ramp <= 1):
@@ -112,6 +117,21 @@ def train_variant(keys: jax.Array, phase1: int, phase2: int, task_set: str,
     run = xla.physics_jit(jax.vmap(al.make_train(cfg), in_axes=(0, None)), Env(cfg.env))
     agents, _ = run(keys, hp)
     return jax.block_until_ready(agents), cfg
+
+
+def variant_plan(name: str, config: TouchMemoryConfig
+                 ) -> tuple[str, int, dict, tuple[int, ...] | None]:
+    """How variant ``name`` is trained under ``config``: its task set, phase 2 episodes, the
+    traced `al.hyper` fields it changes and its heads (`train_variant`'s arguments)."""
+    ts, _, still, starts = VARIANTS[name]
+    pose = "touch_pose" in ts
+    fields = {"touch_bonus": config.touch_bonus} if pose else {}
+    if still:
+        fields["touch_still_penalty"] = config.touch_still_penalty
+    if starts:
+        fields.update(start_noise=config.start_noise, start_ramp=config.start_ramp)
+    phase2 = config.phase2 + (config.still_extra if still else 0)
+    return ts, phase2, fields, config.heads if pose else None
 
 
 def _namer(key: jax.Array, robot, agent, env_config: EnvConfig):
@@ -140,17 +160,11 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
                       "levels": RS.judge_levels(shipped, robot.env_config, k_judge, judged)[0]}}
     keys = jax.random.split(k_train, config.seeds)
     for name in config.variants:
-        ts, what, still, starts = VARIANTS[name]
-        pose = "touch_pose" in ts
-        fields = {"touch_bonus": config.touch_bonus} if pose else {}
-        if still:
-            fields["touch_still_penalty"] = config.touch_still_penalty
-        if starts:
-            fields.update(start_noise=config.start_noise, start_ramp=config.start_ramp)
-        agents, cfg = train_variant(keys, config.phase1, config.phase2, ts, fields,
-                                    config.heads if pose else None)
+        ts, phase2, fields, heads = variant_plan(name, config)
+        agents, cfg = train_variant(keys, config.phase1, phase2, ts, fields, heads)
         levels, raw = RS.judge_levels(agents, cfg.env, k_judge, judged)
-        rows[name] = {"what": what, "levels": levels}
+        rows[name] = {"what": VARIANTS[name][1], "episodes": config.phase1 + phase2,
+                      "levels": levels}
         if name == config.save:
             saved_agents, saved_cfg, saved_raw = agents, cfg, raw[str(config.noise[0])]
     agent = trees.take(saved_agents, 0)
@@ -187,8 +201,9 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
 def report(res: dict, config: TouchMemoryConfig) -> str:
     """The stage's REPORT section: a row per variant and start noise."""
     pct = RS.pct
-    lines = [f"{res['seeds']} agents per variant, {res['episodes']} episodes each (the run's "
-             "AL schedule), judged on the same tasks and keys; median agent (min-max). A "
+    lines = [f"{res['seeds']} agents per variant, trained for the episodes the table says "
+             f"({res['episodes']}: the run's AL schedule), judged on the same tasks and keys; "
+             "median agent (min-max). A "
              "touching pose: touch's reward is minus the joints' L1 distance to the slot's "
              "touching pose (the palm on the target's top), +{b} while touching the target, "
              "-{m} per metre it moved, instead of the paper's minus the palm's distance and "
@@ -199,14 +214,15 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
                  b=res["touch_bonus"], m=res["touch_moved_penalty"],
                  s=res.get("touch_still_penalty", 0.0), n=res.get("start_noise", 0.5),
                  r=res.get("start_ramp", 0.5)), "",
-             "| variant | start | point | touch | push | touch failures: no late contact / "
-             "target moved >= 3 cm |", "|---|---|---|---|---|---|"]
+             "| variant | episodes | start | point | touch | push | touch failures: no late "
+             "contact / target moved >= 3 cm |", "|---|---|---|---|---|---|---|"]
     for row in res["variants"].values():
         for noise, lv in row["levels"].items():
             cells = [RS.rate_cell(lv, a) for a in ("point", "touch", "push")]
             f = lv["touch_failures"]
             start = "home" if float(noise) == 0 else f"±{noise}"
-            lines.append(f"| {row['what']} | {start} | {' | '.join(cells)} | "
+            lines.append(f"| {row['what']} | {row.get('episodes', res['episodes'])} | {start} | "
+                         f"{' | '.join(cells)} | "
                          f"{pct(f['no_late_contact'])} / {pct(f['target_moved_3cm'])} |")
     saved = next(iter(res["variants"][res["saved"]]["levels"].values()))["by_action"]
     met = saved["touch"] >= GOAL_TOUCH and min(saved["point"], saved["push"]) >= GOAL_OTHERS
@@ -222,5 +238,6 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
 
 STAGE = Stage(name="touch_memory", title="Beyond the paper: touch with memory",
               config=TouchMemoryConfig, run=run, report=report,
-              profiles={"paper": {"seeds": 8, "phase2": 1050, "layouts": "all",
-                                  "variants": tuple(VARIANTS), "perform_checks": 6}})
+              profiles={"paper": {"seeds": 8, "phase2": 1050, "still_extra": 1050,
+                                  "layouts": "all", "variants": tuple(VARIANTS),
+                                  "perform_checks": 6}})
