@@ -181,6 +181,19 @@ def test_rewards_match_hand_computed_values(env_c, run_c, push_waypoints, action
     assert float(first.reward) == pytest.approx(_expected_reward(first, action, 1, 7), abs=1e-4)
 
 
+def test_push_can_pay_for_moving_the_target_up_to_a_cap(run_c, push_waypoints):
+    from grounding_jax.sim import tasks
+    task = gj.make_task("push", "middle", 7)
+    _, plain = run_c(push_waypoints[1], task, gj.EnvParams())
+    _, paid = run_c(push_waypoints[1], task, gj.EnvParams(push_moved_bonus=5.0))
+    moved = np.asarray(plain.metrics["target_moved"])
+    assert moved[-1] > tasks.PUSH_MOVED  # the scripted push moves it
+    extra = np.asarray(paid.reward) - np.asarray(plain.reward)
+    np.testing.assert_allclose(extra, 5.0 * np.minimum(moved, tasks.PUSH_MOVED_CAP), atol=1e-5)
+    with pytest.raises(ValueError, match="push_moved_bonus: must be >= 0"):
+        gj.EnvParams(push_moved_bonus=-1.0).validate()
+
+
 def test_touch_penalty_for_another_object(run_c, push_waypoints):
     # task: touch the middle object; the script pushes the left one
     _, traj = run_c(push_waypoints[0], gj.make_task("touch", "middle", 0), gj.EnvParams())

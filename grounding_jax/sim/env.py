@@ -105,6 +105,10 @@ class EnvParams:
         touch_still_penalty: the free family's touch reward loses this much per scaled-joint
             unit (L1) the arm moves in a step while it touches the target: once in contact,
             hold still (0, the default: off; the paper family does not use it).
+        push_moved_bonus: added to the paper family's push reward (not the free family's)
+            per metre the target has moved, counted up to ``tasks.PUSH_MOVED_CAP`` (0, the
+            default: the paper's reward, minus the palm's distance to the target, which pays
+            for reaching it, not for moving it).
         wrong_move_threshold: metres a non-target object may move before it counts as moved.
         wrong_move_extra_steps: steps the episode goes on after a wrong object moved.
         start_noise: half-width (scaled joint units) of the uniform random start around the
@@ -118,6 +122,7 @@ class EnvParams:
     touch_moved_penalty: Any = 10.0
     touch_bonus: Any = 0.0
     touch_still_penalty: Any = 0.0
+    push_moved_bonus: Any = 0.0
     wrong_move_threshold: Any = 0.01
     wrong_move_extra_steps: Any = 3
     start_noise: Any = 0.0
@@ -132,7 +137,8 @@ class EnvParams:
 PARAM_RULES: dict[str, Rule] = {
     "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
     "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE,
-    "touch_still_penalty": NON_NEGATIVE, "wrong_move_threshold": POSITIVE,
+    "touch_still_penalty": NON_NEGATIVE, "push_moved_bonus": NON_NEGATIVE,
+    "wrong_move_threshold": POSITIVE,
     "wrong_move_extra_steps": integer_at_least(0), "start_noise": NON_NEGATIVE,
 }
 

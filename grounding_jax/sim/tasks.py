@@ -70,6 +70,7 @@ STILL_LAST = 10
 POINT_MOVED = 0.01  # metres the target may move while pointed at
 TOUCH_MOVED = 0.03  # ... while touched
 PUSH_MOVED = 0.02  # metres a push must move it
+PUSH_MOVED_CAP = 0.05  # metres of motion ``push_moved_bonus`` pays for (training only)
 
 Terms = Mapping[str, jax.Array]
 
@@ -100,7 +101,9 @@ def _touch_reward(t: Terms, params: Any) -> jax.Array:
 
 
 def _push_reward(t: Terms, params: Any) -> jax.Array:
-    return -t["palm_target_dist"]
+    # the bonus stops at a cap so that flinging the object away pays no more than a push
+    return (-t["palm_target_dist"]
+            + params.push_moved_bonus * jnp.minimum(t["target_moved"], PUSH_MOVED_CAP))
 
 
 def _point_success(q: Terms) -> jax.Array:
