@@ -372,6 +372,14 @@ def test_the_watch_frames_stage_saves_a_robot_that_names_rendered_frames(quick):
     for route in ("frames", "joints"):
         both = np.mean([r[route] == r["truth"] for r in res["rows"]])
         assert res[f"{route}_both"] == pytest.approx(both)
+    # the episodes split by whether the act was done as told, the two parts' rates
+    # recombining to the whole
+    done = [r["done"] for r in res["rows"]]
+    assert res["done"] == sum(done)
+    for route in ("frames", "joints"):
+        parts = [(res[f"{route}_both_{p}"] or 0.0) * n
+                 for p, n in (("done", sum(done)), ("undone", len(done) - sum(done)))]
+        assert sum(parts) == pytest.approx(res[f"{route}_both"] * len(done))
     robot = gj.load(quick / "watch_frames" / "modules")
     # the run's robot as it was saved, with its namer added
     assert set(robot.frames_namers) == {"paper"}

@@ -167,18 +167,34 @@ def _judge(key: jax.Array, robot, family: str, n: int, camera: str) -> dict:
         t_joints += time.perf_counter() - t
         truth = (scene.ACTIONS[cmd[0]], seeing.COLOURS[colour])
         rows.append({"agent": agent, "truth": truth, "frames": by_frames,
-                     "joints": (res["action"], _target_colour(res, ep))})
+                     "joints": (res["action"], _target_colour(res, ep)), "done": _done(ep)})
     if not rows:
         return {"episodes": 0}
 
-    def rate(route: str, part: slice) -> float:
+    def rate(route: str, part: slice, rows: list[dict] = rows) -> float | None:
+        if not rows:
+            return None
         return float(np.mean([r[route][part] == r["truth"][part] for r in rows]))
 
+    done = [r for r in rows if r["done"]]
+    undone = [r for r in rows if not r["done"]]
     return {"episodes": n, "agents": sorted({r["agent"] for r in rows}), "rows": rows,
             **{f"{route}_{what}": rate(route, part) for route in ("frames", "joints")
                for what, part in (("both", slice(0, 2)), ("action", slice(0, 1)),
                                   ("target", slice(1, 2)))},
+            "done": len(done), **{f"{route}_both_{name}": rate(route, slice(0, 2), part)
+                                  for route in ("frames", "joints")
+                                  for name, part in (("done", done), ("undone", undone))},
             "frames_s": t_frames / n, "joints_s": t_joints / n}
+
+
+def _done(ep: dict) -> bool:
+    """Whether the episode did what it was told (the AL judge's success rule)."""
+    from grounding_jax.paper import al_eval
+
+    traj = ep["trajectory"]
+    return bool(al_eval.episode_success(traj, jax.tree.map(lambda x: x[0], traj.task))
+                ["success"])
 
 
 def _target_colour(res: dict, ep: dict) -> str:
@@ -237,6 +253,8 @@ def report(res: dict, config: WatchFramesConfig) -> str:
             miss = _confusions(r.get("rows", []), route)
             if miss:
                 lines.append(f"\nMisnamed actions, {f} family, {route}: {miss}.")
+    lines += [""] + [_done_sentence(f, r) for f, r in res["families"].items()
+                     if r.get("episodes") and "done" in r]
     met = [r["frames_both"] >= GOAL for r in res["families"].values() if r.get("episodes")]
     lines += ["", f"Goal: >= {pct(GOAL)} named right from frames only: "
               f"{'met' if met and all(met) else 'missed'}. " + WHY[config.camera] +
@@ -254,6 +272,21 @@ WHY = {"observer": "From the third-person camera the hand hides the object it re
               "read worse.",
        "both": "The eye's view shows whether the target moved where the hand hides it from "
                "the observer; the observer's tells the objects apart."}
+
+
+def _done_sentence(family: str, r: dict) -> str:
+    """How each route names the episodes whose act was done as told, and the others."""
+    def cell(route: str, part: str) -> str:
+        v = r[f"{route}_both_{part}"]
+        return "-" if v is None else pct(v)
+
+    n, done = r["episodes"], r["done"]
+    return (f"{family.capitalize()} family: the other agent did what it was told (the AL "
+            f"judge's success rule) in {done} of {n} episodes; those are named right from "
+            f"frames in {cell('frames', 'done')} (joint angles {cell('joints', 'done')}), the "
+            f"other {n - done} in {cell('frames', 'undone')} (joint angles "
+            f"{cell('joints', 'undone')}). The frames show what was done, the joint angles "
+            "also what was intended.")
 
 
 def _confusions(rows: list[dict], route: str) -> str:
