@@ -194,6 +194,18 @@ def test_push_can_pay_for_moving_the_target_up_to_a_cap(run_c, push_waypoints):
         gj.EnvParams(push_moved_bonus=-1.0).validate()
 
 
+def test_push_can_pay_for_touching_or_moving_another_object(run_c, push_waypoints):
+    # task: push the middle object; the script pushes the left one
+    task = gj.make_task("push", "middle", 0)
+    _, plain = run_c(push_waypoints[0], task, gj.EnvParams())
+    _, paid = run_c(push_waypoints[0], task, gj.EnvParams(push_other_penalty=-0.5))
+    other = (np.asarray(plain.metrics["touched_other"]) > 0) | (
+        np.asarray(plain.metrics["wrong_moved"]) > 0)
+    assert other.any() and not other.all()
+    extra = np.asarray(paid.reward) - np.asarray(plain.reward)
+    np.testing.assert_allclose(extra, np.where(other, -0.5, 0.0), atol=1e-6)
+
+
 def test_touch_penalty_for_another_object(run_c, push_waypoints):
     # task: touch the middle object; the script pushes the left one
     _, traj = run_c(push_waypoints[0], gj.make_task("touch", "middle", 0), gj.EnvParams())

@@ -109,6 +109,10 @@ class EnvParams:
             per metre the target has moved, counted up to ``tasks.PUSH_MOVED_CAP`` (0, the
             default: the paper's reward, minus the palm's distance to the target, which pays
             for reaching it, not for moving it).
+        push_other_penalty: added to the paper family's push reward while the arm touches a
+            non-target object or one has moved (0, the default: the paper's reward, which
+            lets a push from a random start sweep a neighbour aside; the free family's
+            rewards pay ``touch_other_penalty`` for it instead).
         wrong_move_threshold: metres a non-target object may move before it counts as moved.
         wrong_move_extra_steps: steps the episode goes on after a wrong object moved.
         start_noise: half-width (scaled joint units) of the uniform random start around the
@@ -123,6 +127,7 @@ class EnvParams:
     touch_bonus: Any = 0.0
     touch_still_penalty: Any = 0.0
     push_moved_bonus: Any = 0.0
+    push_other_penalty: Any = 0.0
     wrong_move_threshold: Any = 0.01
     wrong_move_extra_steps: Any = 3
     start_noise: Any = 0.0
@@ -138,6 +143,7 @@ PARAM_RULES: dict[str, Rule] = {
     "action_scale": POSITIVE, "touch_other_penalty": FINITE, "touch_target_penalty": FINITE,
     "touch_moved_penalty": NON_NEGATIVE, "touch_bonus": FINITE,
     "touch_still_penalty": NON_NEGATIVE, "push_moved_bonus": NON_NEGATIVE,
+    "push_other_penalty": FINITE,
     "wrong_move_threshold": POSITIVE,
     "wrong_move_extra_steps": integer_at_least(0), "start_noise": NON_NEGATIVE,
 }

@@ -103,7 +103,9 @@ def _touch_reward(t: Terms, params: Any) -> jax.Array:
 def _push_reward(t: Terms, params: Any) -> jax.Array:
     # the bonus stops at a cap so that flinging the object away pays no more than a push
     return (-t["palm_target_dist"]
-            + params.push_moved_bonus * jnp.minimum(t["target_moved"], PUSH_MOVED_CAP))
+            + params.push_moved_bonus * jnp.minimum(t["target_moved"], PUSH_MOVED_CAP)
+            + jnp.where((t["touched_other"] > 0) | t["wrong_moved"], params.push_other_penalty,
+                        0.0))
 
 
 def _point_success(q: Terms) -> jax.Array:
