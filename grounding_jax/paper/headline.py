@@ -80,9 +80,13 @@ def table(metrics: dict, perform_check: dict | None = None) -> str:
         rows.append(f"| Beyond: every action from random starts within ±0.3 (goals 90% / 85% / "
                     f"90%), point / touch / push | – | {_trio(lv)} |")
     if "touch_memory" in stages:
-        tm = stages["touch_memory"]["result"]["variants"]
+        res = stages["touch_memory"]["result"]
+        tm = res["variants"]
         first = {v: next(iter(tm[v]["levels"].values()))["by_action"] for v in tm}
-        cells = "; ".join(f"{tm[v]['what']} {_trio(first[v])}"
+        # a variant trained longer than the run's schedule says so
+        longer = {v: f" ({tm[v]['episodes']} episodes)" for v in tm
+                  if tm[v].get("episodes", res["episodes"]) != res["episodes"]}
+        cells = "; ".join(f"{tm[v]['what']}{longer.get(v, '')} {_trio(first[v])}"
                           for v in tm if v != "paper")
         rows.append(f"| Beyond: touch with memory, and touch reaching a touching pose (not the "
                     f"paper's reward), from home | proposed | {cells} |")
