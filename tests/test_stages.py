@@ -118,6 +118,7 @@ def test_report_sections_use_the_stage_and_say_when_one_is_missing(monkeypatch):
     ({"save": "paper_memory"}, "save: 'paper_memory'; accepted: one of variants"),
     ({"start_ramp": 2.0}, r"start_noise, start_ramp: 0.5, 2.0; accepted: each in \[0, 1\]"),
     ({"still_extra": -5}, "still_extra: -5; accepted: an int >= 0"),
+    ({"push_other_penalty": float("nan")}, "push_other_penalty: nan; accepted: a finite"),
 ])
 def test_a_bad_touch_memory_config_is_named(changes, needle):
     with pytest.raises(ValueError, match=needle):
@@ -132,6 +133,8 @@ def test_only_the_variants_that_hold_still_get_still_extra():
     ts, phase2, fields, heads = tm.variant_plan("paper_memory_touch_pose_still", config)
     assert (ts, phase2, heads) == ("paper_memory_touch_pose", 30, (0, 1, 0))
     assert fields == {"touch_bonus": 0.5, "touch_still_penalty": 3.0}
+    _, _, fields, _ = tm.variant_plan("paper_memory_touch_pose_still_avoid", config)
+    assert fields == {"touch_bonus": 0.5, "touch_still_penalty": 3.0, "push_other_penalty": -0.5}
     _, phase2, fields, _ = tm.variant_plan("paper_touch_pose_still_starts", config)
     assert phase2 == 30 and fields["start_noise"] == 0.5 and fields["start_ramp"] == 0.5
     _, phase2, _, _ = tm.variant_plan("paper_touch_pose_still", dataclasses.replace(

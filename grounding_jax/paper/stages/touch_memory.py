@@ -3,7 +3,8 @@ actions, `grounding_jax.sim.tasks.PAPER_MEMORY`), trained by CACLA on the same b
 touch's reward changed to the free family's (reach the slot's touching pose, contact paid,
 the target's motion penalized: ``PAPER_TOUCH_POSE``, not the paper's) and both together,
 each also with touch told to hold still once in contact (``EnvParams.touch_still_penalty``:
-the arm's motion while it touches the target costs).
+the arm's motion while it touches the target costs), and one where push also pays for
+touching or moving a neighbour (``EnvParams.push_other_penalty``).
 
 The paper suggests "a recurrent network, memory of past positions" for touch's oscillation.
 Every variant is trained from the stage's key on the run's schedule and judged, with the
@@ -18,7 +19,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import pathlib
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -33,21 +36,34 @@ from grounding_jax.paper.stages import random_starts as RS
 from grounding_jax.sim import tasks, tl_data
 from grounding_jax.sim.env import Env, EnvConfig, EnvParams
 
-#: the variants: (task set, what it changes from the paper's, whether touch is told to hold
-#: still in contact, whether it trains from random starts -- a curriculum from home)
-VARIANTS = {"paper_memory": ("paper_memory", "memory, the paper's reward", False, False),
-            "paper_touch_pose": ("paper_touch_pose", "no memory, touch reaches a touching pose",
-                                 False, False),
-            "paper_memory_touch_pose": ("paper_memory_touch_pose",
-                                        "memory, touch reaches a touching pose", False, False),
-            "paper_touch_pose_still": ("paper_touch_pose", "no memory, touch reaches a "
-                                       "touching pose and holds still there", True, False),
-            "paper_memory_touch_pose_still": ("paper_memory_touch_pose", "memory, touch "
-                                              "reaches a touching pose and holds still there",
-                                              True, False),
-            "paper_touch_pose_still_starts": ("paper_touch_pose", "no memory, touch reaches a "
-                                              "touching pose and holds still there, trained "
-                                              "from random starts", True, True)}
+
+class Variant(NamedTuple):
+    """A variant: its task set, what it changes from the paper's, whether touch is told to
+    hold still in contact, whether it trains from random starts (a curriculum from home),
+    whether push pays for touching or moving a neighbour (``EnvParams.push_other_penalty``)."""
+
+    task_set: str
+    what: str
+    still: bool = False
+    starts: bool = False
+    avoid: bool = False
+
+
+_STILL = "touch reaches a touching pose and holds still there"
+VARIANTS = {"paper_memory": Variant("paper_memory", "memory, the paper's reward"),
+            "paper_touch_pose": Variant("paper_touch_pose",
+                                        "no memory, touch reaches a touching pose"),
+            "paper_memory_touch_pose": Variant("paper_memory_touch_pose",
+                                               "memory, touch reaches a touching pose"),
+            "paper_touch_pose_still": Variant("paper_touch_pose", f"no memory, {_STILL}", True),
+            "paper_memory_touch_pose_still": Variant("paper_memory_touch_pose",
+                                                     f"memory, {_STILL}", True),
+            "paper_touch_pose_still_starts": Variant(
+                "paper_touch_pose", f"no memory, {_STILL}, trained from random starts", True,
+                True),
+            "paper_memory_touch_pose_still_avoid": Variant(
+                "paper_memory_touch_pose", f"memory, {_STILL}, push avoids the neighbours",
+                True, False, True)}
 GOAL_TOUCH, GOAL_OTHERS = 0.85, 0.95
 
 
@@ -60,7 +76,9 @@ class TouchMemoryConfig:
     from them (``start_noise``, reached over the first ``start_ramp`` of the run:
     `grounding_jax.learn.al.ALHyper.start_ramp`), the phase 2 episodes added for the variants
     that hold still (``still_extra``: holding still is learnt after reaching, so they may be
-    given more), the touching-pose variants'
+    given more), what push pays while the arm touches or has moved a neighbour in the
+    variants that avoid them (``EnvParams.push_other_penalty``: from random starts most failed
+    pushes swept a neighbour aside), the touching-pose variants'
     actor-critics (``heads``: touch's own, point and push sharing one; with one for all,
     touch's larger reward took point's network, with one each push lost its), the variants
     (names of `VARIANTS`), the one saved as a robot, and how they are judged."""
@@ -73,9 +91,10 @@ class TouchMemoryConfig:
     touch_still_penalty: float = 3.0
     start_noise: float = 0.5
     start_ramp: float = 0.5
+    push_other_penalty: float = -0.5
     heads: tuple[int, ...] = (0, 1, 0)
-    variants: tuple[str, ...] = ("paper_memory_touch_pose_still",)
-    save: str = "paper_memory_touch_pose_still"
+    variants: tuple[str, ...] = ("paper_memory_touch_pose_still_avoid",)
+    save: str = "paper_memory_touch_pose_still_avoid"
     noise: tuple[float, ...] = (0.0, 0.3)
     layouts: str = "shapes"
     perform_checks: int = 3
@@ -93,6 +112,9 @@ class TouchMemoryConfig:
                              f"{self.phase1} + {self.phase2}")
         if self.still_extra < 0:
             raise ValueError(f"still_extra: {self.still_extra}; accepted: an int >= 0")
+        if not math.isfinite(self.push_other_penalty):
+            raise ValueError(f"push_other_penalty: {self.push_other_penalty}; accepted: a "
+                             "finite number")
         if not self.touch_still_penalty >= 0:
             raise ValueError(f"touch_still_penalty: {self.touch_still_penalty}; accepted: >= 0")
         if not (0 <= self.start_noise <= 1 and 0 <= self.start_ramp <= 1):
@@ -123,15 +145,17 @@ def variant_plan(name: str, config: TouchMemoryConfig
                  ) -> tuple[str, int, dict, tuple[int, ...] | None]:
     """How variant ``name`` is trained under ``config``: its task set, phase 2 episodes, the
     traced `al.hyper` fields it changes and its heads (`train_variant`'s arguments)."""
-    ts, _, still, starts = VARIANTS[name]
-    pose = "touch_pose" in ts
+    v = VARIANTS[name]
+    pose = "touch_pose" in v.task_set
     fields = {"touch_bonus": config.touch_bonus} if pose else {}
-    if still:
+    if v.still:
         fields["touch_still_penalty"] = config.touch_still_penalty
-    if starts:
+    if v.starts:
         fields.update(start_noise=config.start_noise, start_ramp=config.start_ramp)
-    phase2 = config.phase2 + (config.still_extra if still else 0)
-    return ts, phase2, fields, config.heads if pose else None
+    if v.avoid:
+        fields["push_other_penalty"] = config.push_other_penalty
+    phase2 = config.phase2 + (config.still_extra if v.still else 0)
+    return v.task_set, phase2, fields, config.heads if pose else None
 
 
 def _namer(key: jax.Array, robot, agent, env_config: EnvConfig):
@@ -163,7 +187,7 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
         ts, phase2, fields, heads = variant_plan(name, config)
         agents, cfg = train_variant(keys, config.phase1, phase2, ts, fields, heads)
         levels, raw = RS.judge_levels(agents, cfg.env, k_judge, judged)
-        rows[name] = {"what": VARIANTS[name][1], "episodes": config.phase1 + phase2,
+        rows[name] = {"what": VARIANTS[name].what, "episodes": config.phase1 + phase2,
                       "levels": levels}
         if name == config.save:
             saved_agents, saved_cfg, saved_raw = agents, cfg, raw[str(config.noise[0])]
@@ -173,10 +197,8 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
     trained.save(modules, robot.tl.params, robot.tl.hyper, agent, saved_cfg.learner, net,
                  robot.an.config, saved_cfg.env,
                  extra={"stage": "touch_memory", "variant": config.save,
-                        "touch_bonus": config.touch_bonus if "touch_pose" in config.save
-                        else None, "touch_still_penalty": config.touch_still_penalty
-                        if VARIANTS[config.save][2] else None,
-                        "start_noise": config.start_noise if VARIANTS[config.save][3] else 0.0},
+                        "episodes": rows[config.save]["episodes"],
+                        **variant_plan(config.save, config)[2]},
                  agents=saved_agents, saved_agent=0)
     mine = trained.load(modules)  # loaded and asked to perform, as a user would
     task_list = al_eval.all_tasks(RS.LAYOUTS[config.layouts])
@@ -187,9 +209,10 @@ def run(key: jax.Array, inputs: Inputs, out: pathlib.Path, config: TouchMemoryCo
            "touch_bonus": config.touch_bonus,
            "touch_still_penalty": config.touch_still_penalty,
            "start_noise": config.start_noise, "start_ramp": config.start_ramp,
+           "push_other_penalty": config.push_other_penalty,
            "touch_moved_penalty": float(EnvParams().touch_moved_penalty), "variants": rows,
            "saved": config.save,
-           "saved_obs_size": tasks.get(VARIANTS[config.save][0]).obs_size,
+           "saved_obs_size": tasks.get(VARIANTS[config.save].task_set).obs_size,
            "saved_an_test_acc": an_acc,
            "perform_checks": checks,
            "perform_agreement": (float(np.mean([r["judge"] == r["perform"] for r in checks]))
@@ -210,10 +233,11 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
              "-0.3 while touching (not the paper's reward); holding still: -{s} per scaled "
              "joint unit the arm moves while it touches the target; random starts: within "
              "±{n} of home, the range growing from 0 over the first {r:.0%} of the "
-             "episodes.".format(
+             "episodes; push avoids the neighbours: {o} while the arm touches a non-target "
+             "object or one has moved (the paper's push reward has no such term).".format(
                  b=res["touch_bonus"], m=res["touch_moved_penalty"],
                  s=res.get("touch_still_penalty", 0.0), n=res.get("start_noise", 0.5),
-                 r=res.get("start_ramp", 0.5)), "",
+                 r=res.get("start_ramp", 0.5), o=res.get("push_other_penalty", -0.5)), "",
              "| variant | episodes | start | point | touch | push | touch failures: no late "
              "contact / target moved >= 3 cm |", "|---|---|---|---|---|---|---|"]
     for row in res["variants"].values():
@@ -229,9 +253,16 @@ def report(res: dict, config: TouchMemoryConfig) -> str:
     start = "home" if config.noise[0] == 0 else f"starts within ±{config.noise[0]}"
     lines += ["", f"Goal (from {start}): touch >= {pct(GOAL_TOUCH)} with point and push >= "
               f"{pct(GOAL_OTHERS)}: {'met' if met else 'missed'} by the saved variant "
-              f"({VARIANTS[res['saved']][1]}, observation of {res['saved_obs_size']} units). "
+              f"({VARIANTS[res['saved']].what}, observation of {res['saved_obs_size']} units). "
               f"Saved as a robot in `touch_memory/modules` with an AN fitted on its agent 0 "
               f"(test accuracy {pct(res['saved_an_test_acc'])})."]
+    far = res["variants"][res["saved"]]["levels"].get(str(RS.GOAL_NOISE))
+    if far is not None:
+        missed = [a for a, g in RS.GOALS.items() if far["by_action"][a] < g]
+        lines += ["", f"Random starts' goal (within ±{RS.GOAL_NOISE}: point / touch / push >= "
+                  f"{' / '.join(pct(g) for g in RS.GOALS.values())}): "
+                  + (f"missed for {', '.join(missed)}" if missed else "met")
+                  + " by the saved variant."]
     lines += RS.perform_sentence(len(res["perform_checks"]), res["perform_agreement"])
     return "\n".join(lines)
 
