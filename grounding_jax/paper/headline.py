@@ -30,6 +30,19 @@ def _trio(rates: dict) -> str:
     return " / ".join(_pct(rates[a]) for a in ACTIONS)
 
 
+def _touch_memory_row(res: dict) -> str:
+    """The headline row of the ``touch_memory`` stage: each variant from home."""
+    tm = res["variants"]
+    first = {v: next(iter(tm[v]["levels"].values()))["by_action"] for v in tm}
+    # a variant trained longer than the run's schedule says so
+    longer = {v: f" ({tm[v]['episodes']} episodes)" for v in tm
+              if tm[v].get("episodes", res["episodes"]) != res["episodes"]}
+    cells = "; ".join(f"{tm[v]['what']}{longer.get(v, '')} {_trio(first[v])}"
+                      for v in tm if v != "paper")
+    return (f"| Beyond: touch with memory, and touch reaching a touching pose (not the "
+            f"paper's reward), from home | proposed | {cells} |")
+
+
 def table(metrics: dict, perform_check: dict | None = None) -> str:
     """The headline rows as Markdown.
 
@@ -80,16 +93,7 @@ def table(metrics: dict, perform_check: dict | None = None) -> str:
         rows.append(f"| Beyond: every action from random starts within ±0.3 (goals 90% / 85% / "
                     f"90%), point / touch / push | – | {_trio(lv)} |")
     if "touch_memory" in stages:
-        res = stages["touch_memory"]["result"]
-        tm = res["variants"]
-        first = {v: next(iter(tm[v]["levels"].values()))["by_action"] for v in tm}
-        # a variant trained longer than the run's schedule says so
-        longer = {v: f" ({tm[v]['episodes']} episodes)" for v in tm
-                  if tm[v].get("episodes", res["episodes"]) != res["episodes"]}
-        cells = "; ".join(f"{tm[v]['what']}{longer.get(v, '')} {_trio(first[v])}"
-                          for v in tm if v != "paper")
-        rows.append(f"| Beyond: touch with memory, and touch reaching a touching pose (not the "
-                    f"paper's reward), from home | proposed | {cells} |")
+        rows.append(_touch_memory_row(stages["touch_memory"]["result"]))
     if "watch_frames" in stages:
         wf = {f: r for f, r in stages["watch_frames"]["result"]["families"].items()
               if r.get("episodes")}
