@@ -121,7 +121,8 @@ def _stage_touch_rows(files: list[pathlib.Path]) -> list[str]:
                 continue
             for noise, lv in row["levels"].items():
                 trio = " / ".join(_pct(lv["by_action"][a]) for a in ACTIONS)
-                rows.append(f"| `{p.name}` | {d['result']['episodes']} | {row['what']} | "
+                episodes = row.get("episodes", d["result"]["episodes"])
+                rows.append(f"| `{p.name}` | {episodes} | {row['what']} | "
                             f"{'home' if float(noise) == 0 else '±' + noise} | {trio} |")
     return rows
 
