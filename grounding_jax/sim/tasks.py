@@ -100,12 +100,16 @@ def _touch_reward(t: Terms, params: Any) -> jax.Array:
             + jnp.where(t["touched_target"] > 0, params.touch_target_penalty, 0.0))
 
 
+def _at_other(t: Terms) -> jax.Array:
+    """Whether the arm touches a non-target object or one has moved."""
+    return (t["touched_other"] > 0) | t["wrong_moved"]
+
+
 def _push_reward(t: Terms, params: Any) -> jax.Array:
     # the bonus stops at a cap so that flinging the object away pays no more than a push
     return (-t["palm_target_dist"]
             + params.push_moved_bonus * jnp.minimum(t["target_moved"], PUSH_MOVED_CAP)
-            + jnp.where((t["touched_other"] > 0) | t["wrong_moved"], params.push_other_penalty,
-                        0.0))
+            + jnp.where(_at_other(t), params.push_other_penalty, 0.0))
 
 
 def _point_success(q: Terms) -> jax.Array:
@@ -251,8 +255,7 @@ def next_memory(task_set: TaskSet, obs: jax.Array, joints: jax.Array, action: ja
 
 def _avoid(t: Terms, params: Any) -> jax.Array:
     """``touch_other_penalty`` while the arm touches a non-target object or one has moved."""
-    return jnp.where((t["touched_other"] > 0) | t["wrong_moved"], params.touch_other_penalty,
-                     0.0)
+    return jnp.where(_at_other(t), params.touch_other_penalty, 0.0)
 
 
 def _free_point_reward(t: Terms, params: Any) -> jax.Array:

@@ -188,13 +188,17 @@ def _judge(key: jax.Array, robot, family: str, n: int, camera: str) -> dict:
             "frames_s": t_frames / n, "joints_s": t_joints / n}
 
 
-def _done(ep: dict) -> bool:
-    """Whether the episode did what it was told (the AL judge's success rule)."""
+@jax.jit
+def _succeeded(traj) -> jax.Array:
+    """The AL judge's success rule on a stacked episode (one program, not op by op)."""
     from grounding_jax.paper import al_eval
 
-    traj = ep["trajectory"]
-    return bool(al_eval.episode_success(traj, jax.tree.map(lambda x: x[0], traj.task))
-                ["success"])
+    return al_eval.episode_success(traj, jax.tree.map(lambda x: x[0], traj.task))["success"]
+
+
+def _done(ep: dict) -> bool:
+    """Whether the episode did what it was told (the AL judge's success rule)."""
+    return bool(_succeeded(ep["trajectory"]))
 
 
 def _target_colour(res: dict, ep: dict) -> str:
