@@ -20,7 +20,6 @@ Writes results/benchmarks/trainers_<tag>.json and prints a Markdown table.
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import pathlib
 import sys
@@ -87,7 +86,11 @@ def run_ppo(reward: str, steps: int, seed: int, judge_key: jax.Array, settings: 
                                              **PPO[settings])
     wall = time.perf_counter() - t0
     act = make_policy(params, deterministic=True)
-    policy = functools.partial(lambda obs, k: act(obs, k)[0], k=jax.random.key(0))
+    key = jax.random.key(0)  # unused by a deterministic policy, which Brax still asks for
+
+    def policy(obs):
+        return act(obs, key)[0]
+
     params_env = EnvParams(**fields)
     res = judge(policy, task_set, params_env, judge_key)
     print(f"PPO {reward} seed {seed}: touch {res['touch']:.2f} ({wall:.0f} s)", flush=True)
