@@ -56,3 +56,13 @@ def run_mjx(env_mjx):
 @pytest.fixture(scope="session")
 def push_waypoints():
     return {p: jnp.asarray(scripted.push_waypoints(p)) for p in range(3)}
+
+
+#: the test files that take longest (the quick run, the sweeps): started first, so the
+#: workers finish together
+_FIRST = ("test_train.py", "test_sweep.py", "test_reliability.py", "test_backends.py")
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    rank = {name: i for i, name in enumerate(_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(_FIRST)))
