@@ -2,10 +2,11 @@
 variant changes the shipped settings by a few fields -- a task set (``task_set=paper_memory``:
 the actor remembers its last two steps), the actor-critic heads (``heads=0-1-2``: a network
 per action; default one for all, the paper's), traced env or learner fields (``start_noise=0.3``:
-training episodes start from random postures; ``touch_target_penalty=0.1``: touching the
-target pays instead of costing 0.3) -- and is judged the way the ``random_starts`` stage
-judges the saved robot: all three actions on every layout, from home and from random starts
-at each noise level, with the same keys for every variant.
+training episodes start from random postures; ``start_by_action=0-0-1``: only push's do;
+``touch_target_penalty=0.1``: touching the target pays instead of costing 0.3) -- and is
+judged the way the ``random_starts`` stage judges the saved robot: all three actions on every
+layout, from home and from random starts at each noise level, with the same keys for every
+variant.
 
 The keys are never train.py's (0): agents from ``--key`` (21), judged from ``--eval-key``
 (999).
@@ -39,11 +40,11 @@ from grounding_jax.paper.stages import touch_memory as TM  # noqa: E402
 OUT = pathlib.Path(__file__).resolve().parents[1] / "results" / "tuning"
 
 
-def parse_variant(text: str) -> tuple[str, dict, dict[str, float]]:
+def parse_variant(text: str) -> tuple[str, dict, dict[str, float | list[float]]]:
     """``NAME[:FIELD=VALUE,...]`` -> (name, static fields -- ``task_set``, ``heads`` as
     ``0-1-2`` --, traced fields)."""
     name, _, rest = text.partition(":")
-    fields: dict[str, float] = {}
+    fields: dict[str, float | list[float]] = {}
     static: dict = {"task_set": "paper", "heads": None}
     for item in filter(None, rest.split(",")):
         key, sep, value = item.partition("=")
@@ -53,6 +54,8 @@ def parse_variant(text: str) -> tuple[str, dict, dict[str, float]]:
             static["task_set"] = value
         elif key == "heads":
             static["heads"] = tuple(int(h) for h in value.split("-"))
+        elif key == "start_by_action":  # one scale per action, as 0-0-1
+            fields[key] = [float(v) for v in value.split("-")]
         else:
             fields[key] = float(value)
     return name, static, fields

@@ -152,6 +152,21 @@ def test_a_start_curriculum_grows_the_start_range_from_home(small_train):
         al.validate(al.hyper(start_ramp=1.5))
 
 
+def test_start_noise_by_action_scales_each_actions_starts():
+    hp = al.hyper(start_noise=0.4, start_ramp=0.5, start_by_action=[0.0, 0.5, 1.0])
+    got = [[float(al.env_at(hp, jnp.float32(p), jnp.int32(a)).start_noise) for a in range(3)]
+           for p in (0.25, 0.9)]
+    assert got == [pytest.approx([0.0, 0.1, 0.2]), pytest.approx([0.0, 0.2, 0.4])]
+    # traced, as a sweep batches it
+    jitted = jax.jit(lambda h, a: al.env_at(h, jnp.float32(1.0), a).start_noise)
+    assert float(jitted(hp, jnp.int32(1))) == pytest.approx(0.2)
+    for bad in ([-1.0, 0.0, 1.0], 0.5):
+        with pytest.raises(ValueError, match=r"start_by_action: .*accepted: None or numbers"):
+            al.validate(al.hyper(start_by_action=bad))
+    with pytest.raises(ValueError, match=r"start_by_action: .*shape \[\.\.\., 3\]"):
+        al.make_train(SMALL)(jax.random.key(0), al.hyper(start_by_action=[1.0, 1.0]))
+
+
 def test_decay_reaches_the_final_value_at_the_last_episode():
     cfg = al.ALConfig(phase1_episodes=1, phase2_episodes=4)
     _, _, plan = al.schedule(jax.random.key(0), cfg)

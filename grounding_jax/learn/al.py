@@ -27,6 +27,7 @@ from flax import struct
 from grounding_jax.core import trees, xla
 from grounding_jax.core.checks import (
     FLAG,
+    NON_NEGATIVE,
     UNIT_CLOSED,
     Rule,
     check_config,
@@ -154,6 +155,10 @@ class ALHyper:
     ``start_ramp``: 0.0 -- every training episode starts within ``env.start_noise`` of home;
     in (0, 1] -- a curriculum: the start's range grows from 0 (home) to ``env.start_noise``
     over that fraction of the run, linearly in the episode's progress, and stays there.
+
+    ``start_by_action``: ``None`` -- every action's episodes start within ``env.start_noise``
+    of home; float32 ``[n_actions]`` -- each action's start noise is ``env.start_noise``
+    times its entry (e.g. ``[0, 0, 1]``: only push trains from random starts).
     """
 
     learner: Any = cacla.CaclaHyper()
@@ -161,6 +166,7 @@ class ALHyper:
     executed_target: Any = 0.0
     told: Any = None
     start_ramp: Any = 0.0
+    start_by_action: Any = None
 
 
 #: What each of `ALHyper`'s own fields accepts (``validate`` and the sweep runner read
@@ -196,7 +202,24 @@ def validate(hp: ALHyper) -> ALHyper:
     hp.env.validate()
     check_rules(hp, HYPER_RULES)
     _check_told(hp.told)
+    _check_start_by_action(hp.start_by_action)
     return hp
+
+
+def _check_start_by_action(scale: Any, n_actions: int | None = None) -> None:
+    """ValueError naming ``start_by_action`` unless it is None or numbers >= 0 of shape
+    ``[..., n_actions]`` (any last axis when ``n_actions`` is None; traced values: the shape)."""
+    if scale is None:
+        return
+    concrete = not any(isinstance(v, jax.core.Tracer) for v in jax.tree.leaves(scale))
+    shape = np.shape(scale) if concrete else jnp.shape(jnp.asarray(scale))
+    ok = len(shape) >= 1 and (n_actions is None or shape[-1] == n_actions)
+    if ok and concrete:
+        ok = NON_NEGATIVE.holds(scale)
+    if not ok:
+        want = "n_actions" if n_actions is None else str(n_actions)
+        raise ValueError(f"start_by_action: got {scale!r}; accepted: None or numbers >= 0 of "
+                         f"shape [..., {want}] (one per action)")
 
 
 #: the trailing shape of `ALHyper.told`: layouts, positions, words, units
@@ -221,6 +244,7 @@ def _check_learner(config: ALConfig, hp: ALHyper) -> learners.Learner:
     """The config's learner; ValueError if ``hp.learner`` is another learner's (at trace
     time, before anything runs)."""
     lrn = config.learning
+    _check_start_by_action(hp.start_by_action, config.env.tasks.n_actions)
     if not isinstance(hp.learner, lrn.hyper_type):
         raise ValueError(f"learner: hyperparameters {type(hp.learner).__name__} do not belong "
                          f"to the config's learner {lrn.name!r} (accepted: "
@@ -323,7 +347,7 @@ def make_episodes(config: ALConfig):
         key, plan = xs
         task, k_reset, step_keys = parts.draw(key, hp)
         lhp = lrn.at_episode(hp.learner, plan["phase1"], plan["progress"])
-        state = env.reset(k_reset, task, env_at(hp, plan["progress"]))
+        state = env.reset(k_reset, task, env_at(hp, plan["progress"], task.action))
 
         def step(carry, k):
             agent, state = carry
@@ -363,7 +387,7 @@ def make_steps(config: ALConfig):
 
         # every reset of the chunk at once (one batched physics call; resets do not depend
         # on earlier episodes), so the loop restarts an episode by picking its first state
-        firsts = jax.vmap(lambda k, t, p: env.reset(k, t, env_at(hp, p)))(
+        firsts = jax.vmap(lambda k, t, p: env.reset(k, t, env_at(hp, p, t.action)))(
             k_resets, tasks_, plan["progress"])
         state = jax.tree.map(lambda x: x[0], firsts)
         lhp0 = lrn.at_episode(hp.learner, plan["phase1"][0], plan["progress"][0])
@@ -394,11 +418,14 @@ def make_steps(config: ALConfig):
     return run
 
 
-def env_at(hp: ALHyper, progress: jax.Array) -> EnvParams:
-    """``hp.env`` for an episode at ``progress`` (0 -> 1 over the run): its start noise
-    grown by the ``start_ramp`` curriculum (unchanged where the ramp is 0)."""
+def env_at(hp: ALHyper, progress: jax.Array, action: jax.Array | None = None) -> EnvParams:
+    """``hp.env`` for an episode of ``action`` at ``progress`` (0 -> 1 over the run): its start
+    noise grown by the ``start_ramp`` curriculum (unchanged where the ramp is 0) and scaled
+    by the action's ``start_by_action`` entry (where it is set)."""
     ramp = jnp.asarray(hp.start_ramp, jnp.float32)
     grown = jnp.where(ramp > 0, jnp.clip(progress / jnp.maximum(ramp, 1e-6), 0.0, 1.0), 1.0)
+    if hp.start_by_action is not None and action is not None:
+        grown = grown * jnp.asarray(hp.start_by_action, jnp.float32)[action]
     return hp.env.replace(start_noise=hp.env.start_noise * grown)
 
 
