@@ -163,6 +163,8 @@ def test_start_noise_by_action_scales_each_actions_starts():
     for bad in ([-1.0, 0.0, 1.0], 0.5):
         with pytest.raises(ValueError, match=r"start_by_action: .*accepted: None or numbers"):
             al.validate(al.hyper(start_by_action=bad))
+    with pytest.raises(ValueError, match="action: None, but start_by_action is set"):
+        al.env_at(hp, jnp.float32(0.5))
     with pytest.raises(ValueError, match=r"start_by_action: .*shape \[\.\.\., 3\]"):
         al.make_train(SMALL)(jax.random.key(0), al.hyper(start_by_action=[1.0, 1.0]))
 

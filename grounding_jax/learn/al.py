@@ -241,7 +241,8 @@ def _check_told(told: Any) -> None:
 
 
 def _check_learner(config: ALConfig, hp: ALHyper) -> learners.Learner:
-    """The config's learner; ValueError if ``hp.learner`` is another learner's (at trace
+    """The config's learner; ValueError if ``hp.learner`` is another learner's, or
+    ``hp.start_by_action`` has not one entry per action of the config's task set (at trace
     time, before anything runs)."""
     lrn = config.learning
     _check_start_by_action(hp.start_by_action, config.env.tasks.n_actions)
@@ -424,7 +425,10 @@ def env_at(hp: ALHyper, progress: jax.Array, action: jax.Array | None = None) ->
     by the action's ``start_by_action`` entry (where it is set)."""
     ramp = jnp.asarray(hp.start_ramp, jnp.float32)
     grown = jnp.where(ramp > 0, jnp.clip(progress / jnp.maximum(ramp, 1e-6), 0.0, 1.0), 1.0)
-    if hp.start_by_action is not None and action is not None:
+    if hp.start_by_action is not None:
+        if action is None:  # scaling nothing would silently give every action the same starts
+            raise ValueError("action: None, but start_by_action is set; accepted: the "
+                             "episode's action (an int32 index)")
         grown = grown * jnp.asarray(hp.start_by_action, jnp.float32)[action]
     return hp.env.replace(start_noise=hp.env.start_noise * grown)
 
