@@ -137,6 +137,12 @@ def test_only_the_variants_that_hold_still_get_still_extra():
     assert fields == {"touch_bonus": 0.5, "touch_still_penalty": 3.0, "push_other_penalty": -0.5}
     _, phase2, fields, _ = tm.variant_plan("paper_touch_pose_still_starts", config)
     assert phase2 == 30 and fields["start_noise"] == 0.5 and fields["start_ramp"] == 0.5
+    assert "start_by_action" not in fields
+    _, phase2, fields, _ = tm.variant_plan("paper_memory_touch_pose_still_avoid_push_starts",
+                                           config)
+    assert phase2 == 30 and fields == {
+        "touch_bonus": 0.5, "touch_still_penalty": 3.0, "start_noise": 0.5, "start_ramp": 0.5,
+        "start_by_action": [0.0, 0.0, 1.0], "push_other_penalty": -0.5}
     _, phase2, _, _ = tm.variant_plan("paper_touch_pose_still", dataclasses.replace(
         config, still_extra=0))
     assert phase2 == 10

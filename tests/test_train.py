@@ -337,7 +337,7 @@ def test_the_touch_memory_stage_saves_a_robot_that_remembers(quick):
 
     data = json.loads((quick / "metrics.json").read_text())
     res = data["stages"]["touch_memory"]["result"]
-    assert set(res["variants"]) == {"paper", "paper_memory_touch_pose_still_avoid"}
+    assert set(res["variants"]) == {"paper", "paper_memory_touch_pose_still_avoid_push_starts"}
     assert res["touch_still_penalty"] == 3.0 and res["push_other_penalty"] == -0.5
     for row in res["variants"].values():
         assert list(row["levels"]) == ["0.0", "0.3"]

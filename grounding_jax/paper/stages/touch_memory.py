@@ -40,13 +40,17 @@ from grounding_jax.sim.env import Env, EnvConfig, EnvParams
 class Variant(NamedTuple):
     """A variant: its task set, what it changes from the paper's, whether touch is told to
     hold still in contact, whether it trains from random starts (a curriculum from home),
-    whether push pays for touching or moving a neighbour (``EnvParams.push_other_penalty``)."""
+    whether push pays for touching or moving a neighbour (``EnvParams.push_other_penalty``),
+    and, for a variant trained from random starts, each action's share of them
+    (`grounding_jax.learn.al.ALHyper.start_by_action`, in the task set's action order; None:
+    every action alike)."""
 
     task_set: str
     what: str
     still: bool = False
     starts: bool = False
     avoid: bool = False
+    starts_by_action: tuple[float, ...] | None = None
 
 
 _STILL = "touch reaches a touching pose and holds still there"
@@ -63,7 +67,10 @@ VARIANTS = {"paper_memory": Variant("paper_memory", "memory, the paper's reward"
                 True),
             "paper_memory_touch_pose_still_avoid": Variant(
                 "paper_memory_touch_pose", f"memory, {_STILL}, push avoids the neighbours",
-                True, False, True)}
+                True, False, True),
+            "paper_memory_touch_pose_still_avoid_push_starts": Variant(
+                "paper_memory_touch_pose", f"memory, {_STILL}, push avoids the neighbours and "
+                "trains from random starts", True, True, True, (0.0, 0.0, 1.0))}
 GOAL_TOUCH, GOAL_OTHERS = 0.85, 0.95
 
 
@@ -93,8 +100,8 @@ class TouchMemoryConfig:
     start_ramp: float = 0.5
     push_other_penalty: float = -0.5
     heads: tuple[int, ...] = (0, 1, 0)
-    variants: tuple[str, ...] = ("paper_memory_touch_pose_still_avoid",)
-    save: str = "paper_memory_touch_pose_still_avoid"
+    variants: tuple[str, ...] = ("paper_memory_touch_pose_still_avoid_push_starts",)
+    save: str = "paper_memory_touch_pose_still_avoid_push_starts"
     noise: tuple[float, ...] = (0.0, 0.3)
     layouts: str = "shapes"
     perform_checks: int = 3
@@ -152,6 +159,8 @@ def variant_plan(name: str, config: TouchMemoryConfig
         fields["touch_still_penalty"] = config.touch_still_penalty
     if v.starts:
         fields.update(start_noise=config.start_noise, start_ramp=config.start_ramp)
+        if v.starts_by_action is not None:
+            fields["start_by_action"] = list(v.starts_by_action)
     if v.avoid:
         fields["push_other_penalty"] = config.push_other_penalty
     phase2 = config.phase2 + (config.still_extra if v.still else 0)
