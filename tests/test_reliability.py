@@ -362,7 +362,7 @@ STATIC = {
 }
 
 
-@pytest.mark.parametrize("module", ["al", "tl"])
+@pytest.mark.parametrize("module", [pytest.param("al", marks=pytest.mark.slow), "tl"])
 def test_every_static_field_works_as_a_two_value_grid(tmp_path, module):
     # one field changed at a time around the base: a group (compile) per field's second value;
     # the backend's second value (mjx) is left to test_backends' MJX runs (its compile alone

@@ -276,6 +276,7 @@ def test_an_interrupted_search_resumes_bit_identically(strategy, searched, tmp_p
     assert _stable(s) == _stable(runs[strategy])
 
 
+@pytest.mark.slow
 def test_sigkill_mid_asha_then_resume_matches_an_uninterrupted_run(searched, tmp_path):
     _, runs = searched
     data = _search("asha")

@@ -343,6 +343,7 @@ def _sweep_process(spec: dict, out: pathlib.Path, *extra: str, env: dict | None 
     assert r.returncode == 0, r.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_two_forced_host_devices_give_the_same_results(tmp_path):
     spec = {**TINY_AL, "seeds": 3}  # 6 runs, and 2 groups -> padding is exercised too
     spec = {**spec, "grid": {"critic_lr": [0.01], "episode_length": [8, 10]},
@@ -358,6 +359,7 @@ def test_two_forced_host_devices_give_the_same_results(tmp_path):
     _assert_same(_metrics(one), _metrics(two))
 
 
+@pytest.mark.slow
 def test_ray_executor_on_a_local_cluster_matches_local(tmp_path):
     ray = pytest.importorskip("ray")
     spec = _spec(TINY_TL)
